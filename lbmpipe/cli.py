@@ -1,0 +1,186 @@
+"""Command line: ``lbmpipe check SCENE...`` and ``lbmpipe run SCENE --out DIR``.
+
+Exit status: 0 success; 2 bad scene or bad arguments; 3 output directory already holds a
+finished run (``summary.json``) and ``--force`` was not given; 4 the solver did not complete;
+130 interrupted.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from lbmpipe.scene import Scene, SceneError, load_scene
+from lbmpipe.units import LatticeParams, derive
+
+EXIT_OK = 0
+EXIT_BAD_SCENE = 2
+EXIT_EXISTS = 3
+EXIT_FAILED = 4
+EXIT_INTERRUPTED = 130
+
+
+def _flatten(prefix: str, value, out: list[tuple[str, str]]) -> None:
+    if isinstance(value, dict):
+        for k, v in value.items():
+            _flatten(f"{prefix}.{k}" if prefix else k, v, out)
+    elif isinstance(value, list) and value and isinstance(value[0], dict):
+        for i, v in enumerate(value):
+            _flatten(f"{prefix}[{i}]", v, out)
+    else:
+        out.append((prefix, "null" if value is None else str(value)))
+
+
+def _relevant(scene: Scene) -> dict:
+    """The scene as a dict without unset optional keys and keys its kinds do not read."""
+    data = scene.model_dump(mode="json")
+    dom, drv, num = data["domain"], data["driving"], data["numerics"]
+    if scene.domain.kind == "pipe":
+        for key in ("size_mm", "walls", "moving_walls"):
+            dom.pop(key)
+    elif not dom["moving_walls"]:
+        dom.pop("moving_walls")
+    if scene.driving.kind != "body_force":
+        drv.pop("acceleration_m_s2")
+    if scene.numerics.collision != "trt":
+        num.pop("trt_magic")
+
+    def prune(d: dict) -> dict:
+        return {k: prune(v) if isinstance(v, dict) else v for k, v in d.items() if v is not None}
+
+    return prune(data)
+
+
+def _duration(seconds: float) -> str:
+    if seconds < 120:
+        return f"{seconds:.0f} s"
+    if seconds < 7200:
+        return f"{seconds / 60:.1f} min"
+    return f"{seconds / 3600:.1f} h"
+
+
+def _table(rows: list[tuple[str, str]]) -> str:
+    width = max(len(k) for k, _ in rows)
+    return "\n".join(f"  {k:<{width}} = {v}" for k, v in rows)
+
+
+def format_report(scene: Scene, params: LatticeParams, source: str = "") -> str:
+    """Human-readable resolved scene and derived lattice parameters."""
+    rows: list[tuple[str, str]] = []
+    _flatten("", _relevant(scene), rows)
+    u = params.units
+    derived = [
+        ("shape (nx, ny, nz)", " x ".join(str(n) for n in params.shape)),
+        ("fluid nodes", f"{params.fluid_nodes:,}"),
+        ("nu_lu", f"{params.nu_lu:.6g}  ({u.viscosity_phys(params.nu_lu):.4g} m^2/s)"),
+        ("tau", f"{params.tau:.4f}"),
+        ("omega", f"{params.omega:.6g}"),
+    ]
+    if scene.numerics.collision == "trt":
+        derived.append(("omega_minus", f"{params.omega_minus:.6g}  (trt_magic {scene.numerics.trt_magic:g})"))
+    derived += [
+        ("u_mean_lu", f"{params.u_mean_lu:.4g}  ({u.velocity_phys(params.u_mean_lu):.4g} m/s)"),
+        ("u_max_lu", f"{params.u_max_lu:.4g}  ({u.velocity_phys(params.u_max_lu):.4g} m/s)"),
+        ("Mach", f"{params.mach_max:.3f}  (limit {scene.numerics.mach_limit:g})"),
+        ("Re", f"{params.reynolds:.4g}  (length {params.char_length_lu:g} nodes)"),
+    ]
+    if any(params.accel_lu):
+        derived.append(("accel_lu", "(" + ", ".join(f"{a:.4g}" for a in params.accel_lu) + ")"))
+    if params.flow_rate_lu is not None:
+        derived.append(("flow_rate_lu", f"{params.flow_rate_lu:.6g}"))
+    for side, v in params.wall_velocities_lu.items():
+        derived.append((f"wall {side} velocity_lu", "(" + ", ".join(f"{c:.4g}" for c in v) + ")"))
+    derived += [
+        ("steps", f"{params.n_steps:,}  (spin-up {params.spinup_steps:,}, sample every {params.sample_every:,})"),
+        ("estimated run time", f"{_duration(params.estimated_seconds)}  (lbmpipe.cost, {params.fluid_nodes * params.n_steps:.3g} node updates)"),
+    ]
+    text = [f"Scene {scene.name}" + (f"  ({source})" if source else ""), _table(rows), "", "Derived lattice parameters", _table(derived)]
+    if params.warnings:
+        text += ["", "Warnings"] + [f"  - {w}" for w in params.warnings]
+    return "\n".join(text)
+
+
+def _load(path: str) -> tuple[Scene, LatticeParams]:
+    scene = load_scene(path)
+    return scene, derive(scene)
+
+
+def _cmd_check(args) -> int:
+    status = EXIT_OK
+    for i, path in enumerate(args.scenes):
+        try:
+            scene, params = _load(path)
+        except SceneError as exc:
+            print(f"{path}:\n{exc}", file=sys.stderr)
+            status = EXIT_BAD_SCENE
+            continue
+        if i:
+            print()
+        print(format_report(scene, params, path))
+    return status
+
+
+def _cmd_run(args) -> int:
+    try:
+        scene, params = _load(args.scene)
+    except SceneError as exc:
+        print(f"{args.scene}:\n{exc}", file=sys.stderr)
+        return EXIT_BAD_SCENE
+    out = Path(args.out)
+    if (out / "summary.json").exists() and not args.force:
+        print(f"{out} already holds a finished run (summary.json); nothing was changed. "
+              "Use --force to overwrite it, or choose another --out.", file=sys.stderr)
+        return EXIT_EXISTS
+    if args.steps is not None and args.steps < 1:
+        print("--steps must be at least 1", file=sys.stderr)
+        return EXIT_BAD_SCENE
+    if not args.quiet:
+        print(format_report(scene, params, args.scene))
+        print(f"\nwriting to {out}")
+    try:
+        from lbmpipe.solver import run_scene  # lazy: keeps `check` fast and free of numba compilation
+    except ImportError as exc:
+        print(f"the solver is not available: {exc}", file=sys.stderr)
+        return EXIT_FAILED
+    out.mkdir(parents=True, exist_ok=True)
+    try:
+        summary = run_scene(scene, params, out, progress=not args.quiet, max_steps=args.steps)
+    except KeyboardInterrupt:
+        print("interrupted", file=sys.stderr)
+        return EXIT_INTERRUPTED
+    status = (summary or {}).get("status")
+    if status == "completed":
+        return EXIT_OK
+    if status == "interrupted":
+        print("run interrupted; partial results in " + str(out), file=sys.stderr)
+        return EXIT_INTERRUPTED
+    print(f"run did not complete (status {status!r}); see {out}", file=sys.stderr)
+    return EXIT_FAILED
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="lbmpipe", description=__doc__.splitlines()[0])
+    sub = parser.add_subparsers(dest="command", required=True)
+    p_check = sub.add_parser("check", help="validate scene files and print the derived lattice parameters")
+    p_check.add_argument("scenes", nargs="+", metavar="SCENE", help="YAML scene file(s); see docs/scene.md")
+    p_check.set_defaults(func=_cmd_check)
+    p_run = sub.add_parser("run", help="run a scene")
+    p_run.add_argument("scene", metavar="SCENE", help="YAML scene file")
+    p_run.add_argument("--out", required=True, metavar="DIR", help="output directory")
+    p_run.add_argument("--force", action="store_true", help="overwrite a DIR that already holds summary.json")
+    p_run.add_argument("--steps", type=int, default=None, metavar="N", help="stop after N steps (smoke tests)")
+    p_run.add_argument("--quiet", action="store_true", help="no report, no progress bar")
+    p_run.set_defaults(func=_cmd_run)
+    return parser
+
+
+def run_cli(argv: list[str] | None = None) -> int:
+    """Parse ``argv`` and run the command; returns the exit status (argparse errors exit 2)."""
+    args = build_parser().parse_args(argv)
+    return args.func(args)
+
+
+def main(argv: list[str] | None = None) -> None:
+    """Console-script entry point; always ends with SystemExit(status)."""
+    raise SystemExit(run_cli(argv))

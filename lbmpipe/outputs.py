@@ -1,0 +1,116 @@
+"""Output files of a run, in physical units (mm, m/s, m^3/s, s), and the run summary.
+
+Every file and column is documented in the README ("Outputs"). Lattice values are converted here
+through :class:`lbmpipe.units.Units`, nowhere else.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import platform
+import subprocess
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+SUMMARY = "summary.json"
+
+
+def progress_text(step: int, dt_s: float, n_fluid: int, elapsed: float) -> str:
+    mlups = n_fluid * step / elapsed / 1e6 if elapsed > 0 else 0.0
+    return f"t={step * dt_s:.3f} s, {mlups:.1f} MLUPS"
+
+
+def progress_bar(total: int, dt_s: float, n_fluid: int, enabled: bool = True):
+    """tqdm bar over steps (tqdm supplies the ETA); the postfix shows simulated time and MLUPS."""
+    from tqdm import tqdm
+
+    return tqdm(total=total, unit="step", disable=not enabled, dynamic_ncols=True, mininterval=0.5,
+                desc="lbmpipe")
+
+
+def write_flow_rate(out_dir: Path, series, units, scene) -> str:
+    """``flow_rate.csv``: sampled flow rate, driving force density and density deviation."""
+    arr = np.array(series, dtype=np.float64).reshape(-1, 4)
+    df = pd.DataFrame({
+        "t_s": arr[:, 0] * units.dt_s,
+        "q_m3_s": [units.flow_rate_phys(v) for v in arr[:, 1]],
+        # force per unit volume (N/m^3), i.e. the driving pressure gradient -dp/dz
+        "force_density_N_m3": [units.force_phys(v) / units.dx_m**3 for v in arr[:, 2]],
+        "max_density_deviation": arr[:, 3],
+    })
+    df.to_csv(out_dir / "flow_rate.csv", index=False)
+    return "flow_rate.csv"
+
+
+def write_profile(out_dir: Path, r, u, u_ref, count, units) -> str:
+    """``profile.csv``: time-averaged axial velocity against radius, with the Poiseuille reference."""
+    df = pd.DataFrame({
+        "r_mm": [units.length_phys(v) * 1e3 for v in r],
+        "uz_m_s": [units.velocity_phys(v) for v in u],
+        "uz_poiseuille_m_s": [units.velocity_phys(v) for v in u_ref],
+        "nodes": count,
+    })
+    df.to_csv(out_dir / "profile.csv", index=False)
+    return "profile.csv"
+
+
+def versions() -> dict:
+    import numba
+    import scipy
+
+    from . import __version__
+
+    return {"lbmpipe": __version__, "python": platform.python_version(), "numpy": np.__version__,
+            "numba": numba.__version__, "scipy": scipy.__version__, "pandas": pd.__version__}
+
+
+def git_commit() -> str | None:
+    """Commit of the source tree the package runs from, with ``-dirty`` if it has changes."""
+    here = Path(__file__).resolve().parent
+    try:
+        sha = subprocess.run(["git", "rev-parse", "HEAD"], cwd=here, capture_output=True, text=True, timeout=5)
+        if sha.returncode != 0:
+            return None
+        dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"], cwd=here,
+                               capture_output=True, text=True, timeout=5)
+        return sha.stdout.strip() + ("-dirty" if dirty.stdout.strip() else "")
+    except (OSError, subprocess.SubprocessError):
+        return None
+
+
+def _jsonable(obj):
+    if dataclasses.is_dataclass(obj):
+        return {k: _jsonable(v) for k, v in dataclasses.asdict(obj).items()}
+    if isinstance(obj, dict):
+        return {str(k): _jsonable(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_jsonable(v) for v in obj]
+    if isinstance(obj, (np.floating, float)):
+        v = float(obj)
+        return v if math.isfinite(v) else str(v)
+    if isinstance(obj, np.integer):
+        return int(obj)
+    if isinstance(obj, np.ndarray):
+        return _jsonable(obj.tolist())
+    return obj
+
+
+def write_summary(out_dir: Path, summary: dict, scene, params) -> Path:
+    """``summary.json``: the resolved scene, the lattice parameters, effects and timings, status.
+
+    Written to a temporary name and renamed, so a reader never sees a half-written summary.
+    """
+    doc = dict(summary)
+    doc["scene"] = scene.model_dump(mode="json")
+    doc["lattice"] = _jsonable(params)
+    doc["versions"] = versions()
+    doc["git_commit"] = git_commit()
+    path = Path(out_dir) / SUMMARY
+    tmp = path.with_suffix(".json.tmp")
+    tmp.write_text(json.dumps(_jsonable(doc), indent=2, sort_keys=False) + "\n")
+    tmp.replace(path)
+    return path

@@ -1,0 +1,355 @@
+"""Physical <-> lattice unit conversion, and the lattice parameters derived from a scene.
+
+The solver works in lattice units: ``dx = dt = 1`` and a reference density of 1 (the fluid's
+``density_kg_m3``). Every physical quantity with dimension ``L^a T^b M^c`` therefore converts as
+``q_lu = q_phys / (dx^a dt^b (rho dx^3)^c)``; each method below is that rule for one quantity,
+and the ``*_phys`` method is its inverse. Physical units appear only here and at the I/O edges.
+
+``derive(scene)`` turns a validated :class:`lbmpipe.scene.Scene` into :class:`LatticeParams`:
+the relaxation time from ``nu = c_s^2 (tau - 1/2)`` (paper, after Eq. (6), with ``c = dx/dt = 1``),
+the expected velocities (Poiseuille, plane Poiseuille, Couette) and the Mach number they imply,
+and the step counts. Anything that makes the lattice run meaningless (``tau <= 1/2``, a Mach
+number above ``numerics.mach_limit``) raises :class:`lbmpipe.scene.SceneError` naming the field
+and a numerical fix.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field, replace
+from typing import TYPE_CHECKING
+
+from lbmpipe.lattice import CS2
+
+if TYPE_CHECKING:  # pragma: no cover
+    from lbmpipe.scene import Scene
+
+CS = math.sqrt(CS2)
+#: BGK is (linearly) stable only for tau > 1/2, and in practice marginal just above it.
+TAU_MARGINAL = 0.55
+#: With half-way bounce-back, the Poiseuille profile is exact when the "magic" product
+#: Lambda = (tau_+ - 1/2)(tau_- - 1/2) equals 3/16 (Ginzburg); for BGK Lambda = (tau - 1/2)^2.
+MAGIC_EXACT_WALL = 3.0 / 16.0
+#: Default of numerics.mach_limit: beyond it the O(Ma^2) compressibility error is no longer small.
+DEFAULT_MACH_LIMIT = 0.35
+
+
+@dataclass(frozen=True)
+class Units:
+    """Conversion between SI units and lattice units for spacing ``dx_m``, step ``dt_s`` and
+    reference density ``rho_kg_m3`` (lattice density 1 == ``rho_kg_m3``)."""
+
+    dx_m: float
+    dt_s: float
+    rho_kg_m3: float = 1000.0
+
+    def __post_init__(self) -> None:
+        for name in ("dx_m", "dt_s", "rho_kg_m3"):
+            value = getattr(self, name)
+            if not (value > 0 and math.isfinite(value)):
+                raise ValueError(f"Units.{name} must be a positive finite number, got {value!r}")
+
+    # Scale of each dimension: L -> dx, T -> dt, M -> rho dx^3.
+    @property
+    def mass_scale(self) -> float:
+        return self.rho_kg_m3 * self.dx_m**3
+
+    def length(self, m: float) -> float:
+        return m / self.dx_m
+
+    def length_phys(self, lu: float) -> float:
+        return lu * self.dx_m
+
+    def time(self, s: float) -> float:
+        """Physical time in (fractional) time steps."""
+        return s / self.dt_s
+
+    def time_phys(self, steps: float) -> float:
+        return steps * self.dt_s
+
+    def velocity(self, m_s: float) -> float:
+        return m_s * self.dt_s / self.dx_m
+
+    def velocity_phys(self, lu: float) -> float:
+        return lu * self.dx_m / self.dt_s
+
+    def acceleration(self, m_s2: float) -> float:
+        return m_s2 * self.dt_s**2 / self.dx_m
+
+    def acceleration_phys(self, lu: float) -> float:
+        return lu * self.dx_m / self.dt_s**2
+
+    def viscosity(self, m2_s: float) -> float:
+        """Kinematic viscosity; ``tau = 3 viscosity + 1/2``."""
+        return m2_s * self.dt_s / self.dx_m**2
+
+    def viscosity_phys(self, lu: float) -> float:
+        return lu * self.dx_m**2 / self.dt_s
+
+    def flow_rate(self, m3_s: float) -> float:
+        return m3_s * self.dt_s / self.dx_m**3
+
+    def flow_rate_phys(self, lu: float) -> float:
+        return lu * self.dx_m**3 / self.dt_s
+
+    def angular_velocity(self, rad_s: float) -> float:
+        return rad_s * self.dt_s
+
+    def angular_velocity_phys(self, lu: float) -> float:
+        return lu / self.dt_s
+
+    def density(self, kg_m3: float) -> float:
+        return kg_m3 / self.rho_kg_m3
+
+    def density_phys(self, lu: float) -> float:
+        return lu * self.rho_kg_m3
+
+    def mass(self, kg: float) -> float:
+        return kg / self.mass_scale
+
+    def mass_phys(self, lu: float) -> float:
+        return lu * self.mass_scale
+
+    def force(self, n: float) -> float:
+        return n * self.dt_s**2 / (self.mass_scale * self.dx_m)
+
+    def force_phys(self, lu: float) -> float:
+        return lu * self.mass_scale * self.dx_m / self.dt_s**2
+
+    def torque(self, n_m: float) -> float:
+        return n_m * self.dt_s**2 / (self.mass_scale * self.dx_m**2)
+
+    def torque_phys(self, lu: float) -> float:
+        return lu * self.mass_scale * self.dx_m**2 / self.dt_s**2
+
+    def moment_of_inertia(self, kg_m2: float) -> float:
+        return kg_m2 / (self.mass_scale * self.dx_m**2)
+
+    def moment_of_inertia_phys(self, lu: float) -> float:
+        return lu * self.mass_scale * self.dx_m**2
+
+    def pressure(self, pa: float) -> float:
+        """Pressure (or stress) difference. The lattice equation of state is ``p = rho c_s^2``
+        (Eq. (5, 6)), so a lattice density deviation ``drho`` is ``pressure_phys(drho / 3)``."""
+        return pa * self.dt_s**2 / (self.mass_scale / self.dx_m)
+
+    def pressure_phys(self, lu: float) -> float:
+        return lu * (self.mass_scale / self.dx_m) / self.dt_s**2
+
+
+@dataclass(frozen=True)
+class LatticeParams:
+    """Lattice parameters derived from a scene by :func:`derive` (all in lattice units unless the
+    name says otherwise)."""
+
+    units: Units
+    shape: tuple[int, int, int]  # fluid domain extent in nodes (x, y, z)
+    nu_lu: float
+    tau: float
+    omega: float
+    omega_minus: float  # TRT odd-moment rate; equals omega for BGK
+    u_mean_lu: float
+    u_max_lu: float
+    mach_max: float  # u_max_lu / c_s
+    reynolds: float
+    accel_lu: tuple[float, float, float]
+    flow_rate_lu: float | None
+    wall_velocities_lu: dict[str, tuple[float, float, float]]
+    n_steps: int
+    spinup_steps: int
+    sample_every: int
+    estimated_seconds: float
+    # Additions beyond the shared contract (all with defaults):
+    fluid_nodes: int = 0  # nodes whose centre is inside the fluid (pipe: inside the circle)
+    char_length_lu: float = 0.0  # length used in `reynolds`
+    warnings: tuple[str, ...] = field(default=())
+
+
+def _floor_sig(x: float, digits: int = 3) -> float:
+    """Round ``x > 0`` down to ``digits`` significant digits, so a suggested limit stays safe."""
+    if x <= 0 or not math.isfinite(x):
+        return x
+    scale = 10.0 ** (math.floor(math.log10(x)) - digits + 1)
+    return math.floor(x / scale * (1 + 1e-12)) * scale
+
+
+def _ceil_sig(x: float, digits: int = 3) -> float:
+    if x <= 0 or not math.isfinite(x):
+        return x
+    scale = 10.0 ** (math.floor(math.log10(x)) - digits + 1)
+    return math.ceil(x / scale * (1 - 1e-12)) * scale
+
+
+def nodes_along(extent_mm: float, dx_mm: float) -> int:
+    """Number of nodes spanning ``extent_mm`` (the scene validator guarantees a near-integer)."""
+    return int(round(extent_mm / dx_mm))
+
+
+def physical_viscosity(scene: "Scene") -> float:
+    """Kinematic viscosity in m^2/s: given, or from ``Re = U_mean D / nu`` with ``U_mean = Q / A``."""
+    fluid = scene.fluid
+    if fluid.viscosity_m2_s is not None:
+        return fluid.viscosity_m2_s
+    d_m = scene.domain.diameter_mm * 1e-3
+    u_mean = scene.driving.flow_rate_m3_s / (math.pi * d_m**2 / 4.0)
+    return u_mean * d_m / fluid.reynolds
+
+
+def _expected_velocities(
+    scene: "Scene", shape: tuple[int, int, int], nu_lu: float, accel_lu: tuple[float, float, float],
+    flow_rate_lu: float | None, wall_velocities_lu: dict[str, tuple[float, float, float]], n_steps: int,
+) -> tuple[float, float, float]:
+    """(u_mean, u_max, characteristic length) of the expected flow, lattice units.
+
+    Box: ``u_max`` is an upper bound (plane Poiseuille across the narrowest walled gap plus the
+    fastest wall), ``u_mean`` the plane-flow estimate (2/3 of the Poiseuille maximum, half of
+    each wall speed).
+
+    Half-way bounce-back puts walls half a link outside the outermost fluid nodes, so a pipe of
+    ``n_d`` nodes has radius ``n_d / 2`` and a channel of ``n`` nodes has width ``n``.
+    """
+    dom = scene.domain
+    kind = scene.driving.kind
+    if dom.kind == "pipe":
+        radius = shape[0] / 2.0
+        if kind == "flow_rate":
+            u_mean = flow_rate_lu / (math.pi * radius**2)
+            return u_mean, 2.0 * u_mean, 2.0 * radius
+        if kind == "body_force":
+            u_max = abs(accel_lu[2]) * radius**2 / (4.0 * nu_lu)  # Hagen-Poiseuille
+            return u_max / 2.0, u_max, 2.0 * radius
+        return 0.0, 0.0, 2.0 * radius
+
+    walled = [a for a, axis in enumerate("xyz") if getattr(dom.walls, axis) == "wall"]
+    char_len = float(min(shape[a] for a in walled)) if walled else float(min(shape))
+    u_force_sq = 0.0
+    mean_vec = [0.0, 0.0, 0.0]
+    if kind == "body_force":
+        for a in range(3):
+            g = accel_lu[a]
+            if g == 0.0 or a in walled:  # a force normal to walls is balanced by pressure
+                continue
+            across = [shape[b] for b in walled if b != a]
+            if across:
+                # Plane Poiseuille across the narrowest walled gap bounds any duct flow from above.
+                u_a = abs(g) * min(across) ** 2 / (8.0 * nu_lu)
+                mean_vec[a] += math.copysign(2.0 / 3.0 * u_a, g)
+            else:
+                u_a = abs(g) * n_steps  # nothing resists: uniform acceleration until the end of the run
+                mean_vec[a] += math.copysign(u_a, g)
+            u_force_sq += u_a**2
+    for v in wall_velocities_lu.values():
+        # Each sliding face drives a linear (Couette) profile falling to 0 at the opposite face.
+        for a in range(3):
+            mean_vec[a] += 0.5 * v[a]
+    u_walls = max((math.sqrt(sum(c * c for c in v)) for v in wall_velocities_lu.values()), default=0.0)
+    # Stokes flows superpose, so the sum bounds the centre-line speed of the combined flow.
+    u_max = math.sqrt(u_force_sq) + u_walls
+    u_mean = math.sqrt(sum(c * c for c in mean_vec))
+    return u_mean, u_max, char_len
+
+
+def derive(scene: "Scene") -> LatticeParams:
+    """Lattice parameters of ``scene``; raises SceneError when they make the run meaningless."""
+    from lbmpipe import cost
+    from lbmpipe.scene import SceneError
+
+    num, dom, run = scene.numerics, scene.domain, scene.run
+    units = Units(num.dx_mm * 1e-3, num.dt_s, scene.fluid.density_kg_m3)
+    if dom.kind == "pipe":
+        n_d = nodes_along(dom.diameter_mm, num.dx_mm)
+        shape = (n_d, n_d, nodes_along(dom.length_mm, num.dx_mm))
+    else:
+        shape = tuple(nodes_along(s, num.dx_mm) for s in dom.size_mm)
+
+    nu_phys = physical_viscosity(scene)
+    nu_lu = units.viscosity(nu_phys)
+    tau = nu_lu / CS2 + 0.5
+    visc_field = "fluid.reynolds" if scene.fluid.reynolds is not None else "fluid.viscosity_m2_s"
+    if not tau > 0.5:
+        dt_ok = _ceil_sig((TAU_MARGINAL - 0.5) * CS2 * units.dx_m**2 / nu_phys) if nu_phys > 0 else math.inf
+        raise SceneError(
+            "numerics.dt_s",
+            f"tau = {tau:.6g} <= 1/2: the lattice viscosity ({nu_lu:.3g}, from {visc_field}) is "
+            "negative or zero, so the BGK/TRT relaxation is unstable",
+            f"increase numerics.dt_s to at least {dt_ok:.3g} s (tau = {TAU_MARGINAL}) or increase the viscosity",
+        )
+    omega = 1.0 / tau
+    if num.collision == "trt":
+        tau_minus = num.trt_magic / (tau - 0.5) + 0.5
+        omega_minus = 1.0 / tau_minus
+    else:
+        omega_minus = omega
+
+    drv = scene.driving
+    accel_lu = tuple(units.acceleration(a) for a in drv.acceleration_m_s2) if drv.kind == "body_force" else (0.0, 0.0, 0.0)
+    flow_rate_lu = units.flow_rate(drv.flow_rate_m3_s) if drv.kind == "flow_rate" else None
+    wall_velocities_lu = {
+        mw.side: tuple(units.velocity(v) for v in mw.velocity_m_s) for mw in dom.moving_walls
+    }
+
+    n_steps = int(round(units.time(run.duration_s)))
+    spinup_steps = int(round(units.time(run.spinup_s)))
+    sample_every = max(1, int(round(units.time(run.sample_interval_s))))
+    if n_steps < 1:
+        raise SceneError(
+            "run.duration_s",
+            f"duration {run.duration_s:g} s is less than one time step of numerics.dt_s = {num.dt_s:g} s",
+            f"set run.duration_s to at least {num.dt_s:g} s",
+        )
+    if spinup_steps >= n_steps:
+        raise SceneError(
+            "run.spinup_s",
+            f"spin-up {run.spinup_s:g} s rounds to {spinup_steps} steps, not fewer than the "
+            f"{n_steps} steps of run.duration_s = {run.duration_s:g} s, leaving nothing to average",
+            "lower run.spinup_s or raise run.duration_s",
+        )
+
+    u_mean, u_max, char_len = _expected_velocities(
+        scene, shape, nu_lu, accel_lu, flow_rate_lu, wall_velocities_lu, n_steps
+    )
+    mach = u_max / CS
+    reynolds = u_mean * char_len / nu_lu if dom.kind == "pipe" else u_max * char_len / nu_lu
+    if mach > num.mach_limit:
+        # At fixed physical velocities and viscosity every lattice velocity scales with dt.
+        dt_ok = _floor_sig(num.dt_s * num.mach_limit / mach)
+        tau_ok = 0.5 + (tau - 0.5) * dt_ok / num.dt_s
+        raise SceneError(
+            "numerics.dt_s",
+            f"Mach {mach:.3g} exceeds numerics.mach_limit {num.mach_limit:g} (centre-line "
+            f"u_max = {u_max:.3g} lattice units)",
+            f"reduce numerics.dt_s to <= {dt_ok:.3g} s (keeps Re; tau becomes {tau_ok:.3g}), "
+            "or raise numerics.mach_limit to accept the compressibility error (~Ma^2)",
+        )
+
+    warnings: list[str] = []
+    for name, seconds, steps in (
+        ("run.duration_s", run.duration_s, n_steps),
+        ("run.spinup_s", run.spinup_s, spinup_steps),
+        ("run.sample_interval_s", run.sample_interval_s, sample_every),
+    ):
+        if abs(units.time_phys(steps) - seconds) > 1e-6 * max(seconds, num.dt_s):
+            warnings.append(f"{name} = {seconds:g} s is not a multiple of dt; using {steps} steps "
+                            f"({units.time_phys(steps):g} s)")
+    if num.collision == "bgk" and tau < TAU_MARGINAL:
+        warnings.append(f"tau = {tau:.4g} is close to 1/2: BGK is marginally stable there; "
+                        "consider collision: trt or a larger dt_s")
+    has_walls = dom.kind == "pipe" or any(getattr(dom.walls, a) == "wall" for a in "xyz")
+    if num.collision == "bgk" and num.wall == "bounce_back" and has_walls and tau > 1.5:
+        warnings.append(
+            f"BGK with half-way bounce-back puts the effective wall at a tau-dependent position "
+            f"(exact for Poiseuille flow only at Lambda = (tau-1/2)^2 = 3/16, tau = 0.933; here "
+            f"Lambda = {(tau - 0.5) ** 2:.3g}); collision: trt with trt_magic 0.1875 makes it tau-independent")
+    if mach > DEFAULT_MACH_LIMIT:
+        warnings.append(f"Mach {mach:.3g} is above the default limit {DEFAULT_MACH_LIMIT} (numerics.mach_limit "
+                        f"raised to {num.mach_limit:g}): compressibility errors of order Ma^2 = {mach**2:.2g}")
+
+    params = LatticeParams(
+        units=units, shape=shape, nu_lu=nu_lu, tau=tau, omega=omega, omega_minus=omega_minus,
+        u_mean_lu=u_mean, u_max_lu=u_max, mach_max=mach, reynolds=reynolds, accel_lu=accel_lu,
+        flow_rate_lu=flow_rate_lu, wall_velocities_lu=wall_velocities_lu, n_steps=n_steps,
+        spinup_steps=spinup_steps, sample_every=sample_every, estimated_seconds=0.0,
+        fluid_nodes=cost.fluid_nodes(dom.kind, shape), char_length_lu=char_len,
+        warnings=tuple(warnings),
+    )
+    return replace(params, estimated_seconds=cost.estimate_seconds(params, threads=run.threads))
