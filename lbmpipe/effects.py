@@ -74,12 +74,14 @@ class WallBouzidi(Effect):
 
     name = "wall: interpolated bounce-back (Bouzidi)"
 
-    def __init__(self, links: bnd.Links):
+    def __init__(self, links: bnd.Links, weights: np.ndarray):
         self.links = links
+        self.w_link = np.ascontiguousarray(weights[links.i])
+        self.w_sum = float(self.w_link.sum())
 
     def __call__(self, sim) -> None:
         k = self.links
-        bnd.fill_bouzidi(sim.f2, k.fluid, k.solid, k.i, k.opp, k.q, k.fluid2)
+        bnd.fill_bouzidi(sim.f2, k.fluid, k.solid, k.i, k.opp, k.q, k.fluid2, self.w_link, self.w_sum)
 
 
 class MovingWall(Effect):
@@ -149,7 +151,7 @@ def wall_effects(grid: bnd.Grid, scheme: str, wall_velocities: dict[str, tuple])
             effects.append(MovingWall(_subset(links, on_moving), delta[on_moving]))
             links = _subset(links, ~on_moving)
     if len(links):
-        effects.append(WallBouzidi(links) if scheme == "bouzidi" else WallBounceBack(links))
+        effects.append(WallBouzidi(links, grid.lattice.w) if scheme == "bouzidi" else WallBounceBack(links))
     return effects
 
 

@@ -1,0 +1,569 @@
+"""Particle-particle and particle-wall collisions: the instantaneous impulse model of the paper,
+Eqs. (16)-(21), plus the overlap control that discrete time steps need.
+
+Impulse (Eqs. (16)-(19)). Bodies 1 and 2 touch at the point ``O`` with unit normal ``p`` pointing
+from 1 to 2; ``l_i = O - x_i`` are the lever arms, ``A_i`` the body->lab rotation matrices of the
+quaternions (Eq. (20)), subscript ``s`` body-frame components. With the contact-point velocities
+``u_i = v_i + omega_i x l_i`` and ``v_ip = u_i . p``, the bodies approach when
+``v_1p - v_2p > 0``; then
+
+    I = m_1 (1 + k)(v_1p - v_2p) / {1 + m_1/m_2 + m_1 ([A_1 J_1^-1 (l_1s x p_1s)] x l_1) . p
+                                     + m_1 ([A_2 J_2^-1 (l_2s x p_2s)] x l_2) . p}      (19)
+
+    m_1 v_1' = m_1 v_1 - I p,            m_2 v_2' = m_2 v_2 + I p                      (16)
+    J_1 w_1s' = J_1 w_1s - l_1s x (I p_s),  J_2 w_2s' = J_2 w_2s + l_2s x (I p_s)       (18)
+
+so that ``v_1p' - v_2p' = -k (v_1p - v_2p)`` (Eq. (17)), ``k`` the restitution (paper: ``k = 1``,
+elastic). The code evaluates Eq. (19) divided through by ``m_1``, i.e.
+``I = (1 + k)(v_1p - v_2p) / (1/m_1 + 1/m_2 + t_1 + t_2)`` with
+``t_i = ([A_i J_i^-1 (l_is x p_is)] x l_i) . p``, which also covers fixed bodies: a fixed body
+has ``1/m = 0`` and ``J^-1 = 0`` (infinite mass and inertia).
+
+Walls (Eq. (21)): the same with body 2 the wall, ``m_2 -> infinity``, ``v_2p = 0``; here ``p``
+points from the particle into the wall and the particle approaches when ``v_1p > 0``,
+``I = m_1 (1 + k) v_1p / {1 + m_1 ([A_1 J_1^-1 (l_1s x p_1s)] x l_1) . p}`` and
+``m_1 v_1' = m_1 v_1 - I p``. (The paper writes Eq. (21) with ``p`` the wall normal into the fluid,
+``-p`` here, whence its ``-v_1p``.)
+
+Every single impulse conserves the total linear momentum and the total angular momentum about
+any fixed point (both bodies receive ``-/+ I p`` at the same point ``O``), and changes the kinetic
+energy by ``-(1 - k^2)/2 * m_eff (v_1p - v_2p)^2`` with ``1/m_eff = 1/m_1 + 1/m_2 + t_1 + t_2``
+(zero for ``k = 1``).
+
+When is a contact treated (``CollisionParams``):
+- a pair (or body and wall) is in contact when its signed gap ``g <= contact_gap``, or, with
+  ``speculative=True`` (default), when ``g <= contact_gap + (v_1p - v_2p) dt``, i.e. when it
+  would close the remaining gap within the coming step (the bounce then happens up to one step
+  early instead of the bodies overlapping);
+- an impulse is applied only if the contact approaches; with several simultaneous contacts the
+  impulses are applied contact by contact (Gauss-Seidel) in repeated sweeps until no contact
+  approaches (or ``max_sweeps``).
+
+Overlap control: after the impulses, overlaps are removed by projecting positions along the
+normal, split by inverse mass (``x_1 -= d p m_2/(m_1+m_2)``, ``x_2 += d p m_1/(m_1+m_2)``, which
+keeps the centre of mass; against a wall the particle moves by ``d``), Gauss-Seidel over all
+contacts, repeated until every overlap is at most ``overlap_tol``. Velocities and orientations are
+not touched by the projection. Bound: when ``resolve_collisions`` returns, every pair and wall
+overlap is ``<= overlap_tol`` (default 0.01 lattice spacing) unless the projection ran out of
+iterations (``max_projection_iters``, only in a jammed configuration); the value reached is
+``stats["max_overlap_after"]`` either way. Between calls, bodies then move by at most
+``(|v| + |omega| r_b) dt``; the speculative contacts bounce every approaching pair that could close
+its gap in that step, so the overlap seen at the next call stays a small fraction of that motion.
+
+Call once per time step, after the velocity update (hydrodynamic forces) and before the positions
+are advanced.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from numba import njit
+
+from .contact import bounding_radii, body_contact, candidate_pairs, pipe_wall_contact, plane_wall_contact
+from .rigid import Bodies, quat_to_matrices
+
+PIPE = 0
+BOX = 1
+
+
+@dataclass(frozen=True)
+class Domain:
+    """Geometry that bounds the particles.
+
+    ``kind = "pipe"``: a circular pipe of ``radius`` about the axis through ``center`` (x, y),
+    parallel to z, periodic along z with period ``length`` (z in ``[z0, z0 + length)``).
+    ``kind = "box"``: planar walls at ``lo`` and ``hi`` (per axis x, y, z); an axis with
+    ``periodic[a]`` has no walls but is periodic with period ``hi[a] - lo[a]``.
+    Use the constructors ``Domain.pipe(...)`` and ``Domain.box(...)``.
+    """
+
+    kind: str
+    radius: float = 0.0
+    length: float = 0.0
+    center: tuple = (0.0, 0.0)
+    z0: float = 0.0
+    lo: tuple = (0.0, 0.0, 0.0)
+    hi: tuple = (0.0, 0.0, 0.0)
+    periodic: tuple = (False, False, False)
+
+    @classmethod
+    def pipe(cls, radius: float, length: float, center=(0.0, 0.0), z0: float = 0.0) -> "Domain":
+        if not (radius > 0.0 and length > 0.0):
+            raise ValueError(f"Domain.pipe: radius and length must be > 0, got {radius}, {length}")
+        cx, cy = float(center[0]), float(center[1])
+        return cls(
+            kind="pipe", radius=float(radius), length=float(length), center=(cx, cy), z0=float(z0),
+            lo=(cx - radius, cy - radius, float(z0)), hi=(cx + radius, cy + radius, float(z0) + length),
+            periodic=(False, False, True),
+        )
+
+    @classmethod
+    def box(cls, lo, hi, periodic=(False, False, False)) -> "Domain":
+        lo = tuple(float(a) for a in lo)
+        hi = tuple(float(a) for a in hi)
+        periodic = tuple(bool(p) for p in periodic)
+        if len(lo) != 3 or len(hi) != 3 or len(periodic) != 3 or any(h <= l for l, h in zip(lo, hi)):
+            raise ValueError(f"Domain.box: need 3 axes with hi > lo, got lo={lo}, hi={hi}, periodic={periodic}")
+        return cls(kind="box", lo=lo, hi=hi, periodic=periodic)
+
+    def arrays(self):
+        """(code, radius, cx, cy, lo (3,), hi (3,), periodic (3,) bool) for the kernels."""
+        if self.kind not in ("pipe", "box"):
+            raise ValueError(f"Domain.kind must be 'pipe' or 'box', got {self.kind!r}")
+        return (
+            PIPE if self.kind == "pipe" else BOX,
+            float(self.radius), float(self.center[0]), float(self.center[1]),
+            np.array(self.lo, dtype=np.float64), np.array(self.hi, dtype=np.float64),
+            np.array(self.periodic, dtype=np.bool_),
+        )
+
+
+@dataclass(frozen=True)
+class CollisionParams:
+    """Parameters of the collision model (lengths in the units of the positions, lattice units in
+    the solver; ``dt`` is passed to ``resolve_collisions``).
+
+    - ``restitution``: ``k`` of Eq. (17); 1 = elastic (the paper's setting).
+    - ``contact_gap``: a signed gap at or below this counts as contact (the fluid cannot resolve
+      gaps below a lattice spacing, so the bounce happens at this sub-grid separation).
+    - ``speculative``: also treat an approaching contact that would close ``gap - contact_gap``
+      within the step (module docstring).
+    - ``overlap_tol``: largest overlap left after the call (the stated bound).
+    - ``manifold_tol``: flatness tolerance of the contact-patch centroid (``lbmpipe.contact``).
+    - ``skin``: extra broad-phase margin; also the displacement budget of the projection before
+      the pair list is rebuilt.
+    - ``max_sweeps``, ``max_projection_iters``: caps of the Gauss-Seidel loops.
+    """
+
+    restitution: float = 1.0
+    contact_gap: float = 0.1
+    speculative: bool = True
+    overlap_tol: float = 0.01
+    manifold_tol: float = 0.1
+    skin: float = 0.5
+    max_sweeps: int = 100
+    max_projection_iters: int = 200
+
+    def __post_init__(self):
+        if not (0.0 <= self.restitution <= 1.0):
+            raise ValueError(f"CollisionParams.restitution must be in [0, 1], got {self.restitution}")
+        if self.contact_gap < 0.0 or self.overlap_tol <= 0.0 or self.manifold_tol < 0.0 or self.skin <= 0.0:
+            raise ValueError(f"CollisionParams: contact_gap >= 0, overlap_tol > 0, manifold_tol >= 0, skin > 0 ({self})")
+
+
+# stats layout
+_S_CAND, _S_PAIR, _S_WALL, _S_IMP, _S_OVB, _S_OVA, _S_SWEEP, _S_PROJ, _S_UNRES, _S_DISP = range(10)
+_NSTATS = 10
+
+
+@njit(cache=True)
+def _impulse(i, j, sx, sy, sz, c, p, gap, x, v, wb, Rm, im, iinv, k_rest, contact_gap, spec, dt, vtol):
+    """Apply Eqs. (16)-(19) (j >= 0) or Eq. (21) (j < 0: wall) if the contact is active and
+    approaching. Returns the impulse I (0 if none)."""
+    # lever arms and contact-point velocities v + omega x l (omega_lab = A wb)
+    l1x = c[0] - x[i, 0]
+    l1y = c[1] - x[i, 1]
+    l1z = c[2] - x[i, 2]
+    w1x = Rm[i, 0, 0] * wb[i, 0] + Rm[i, 0, 1] * wb[i, 1] + Rm[i, 0, 2] * wb[i, 2]
+    w1y = Rm[i, 1, 0] * wb[i, 0] + Rm[i, 1, 1] * wb[i, 1] + Rm[i, 1, 2] * wb[i, 2]
+    w1z = Rm[i, 2, 0] * wb[i, 0] + Rm[i, 2, 1] * wb[i, 1] + Rm[i, 2, 2] * wb[i, 2]
+    u1x = v[i, 0] + w1y * l1z - w1z * l1y
+    u1y = v[i, 1] + w1z * l1x - w1x * l1z
+    u1z = v[i, 2] + w1x * l1y - w1y * l1x
+    vn = u1x * p[0] + u1y * p[1] + u1z * p[2]
+    l2x = 0.0
+    l2y = 0.0
+    l2z = 0.0
+    if j >= 0:
+        l2x = c[0] - (x[j, 0] + sx)
+        l2y = c[1] - (x[j, 1] + sy)
+        l2z = c[2] - (x[j, 2] + sz)
+        w2x = Rm[j, 0, 0] * wb[j, 0] + Rm[j, 0, 1] * wb[j, 1] + Rm[j, 0, 2] * wb[j, 2]
+        w2y = Rm[j, 1, 0] * wb[j, 0] + Rm[j, 1, 1] * wb[j, 1] + Rm[j, 1, 2] * wb[j, 2]
+        w2z = Rm[j, 2, 0] * wb[j, 0] + Rm[j, 2, 1] * wb[j, 1] + Rm[j, 2, 2] * wb[j, 2]
+        u2x = v[j, 0] + w2y * l2z - w2z * l2y
+        u2y = v[j, 1] + w2z * l2x - w2x * l2z
+        u2z = v[j, 2] + w2x * l2y - w2y * l2x
+        vn -= u2x * p[0] + u2y * p[1] + u2z * p[2]
+    if vn <= vtol:
+        return 0.0
+    thr = contact_gap
+    if spec:
+        thr += vn * dt
+    if gap > thr:
+        return 0.0
+    # a_i = J_i^-1 (l_is x p_is) in the body frame (Eq. (18)); t_i = ([A_i a_i] x l_i) . p (Eq. (19))
+    a1 = np.empty(3)
+    a2 = np.zeros(3)
+    ls0 = Rm[i, 0, 0] * l1x + Rm[i, 1, 0] * l1y + Rm[i, 2, 0] * l1z
+    ls1 = Rm[i, 0, 1] * l1x + Rm[i, 1, 1] * l1y + Rm[i, 2, 1] * l1z
+    ls2 = Rm[i, 0, 2] * l1x + Rm[i, 1, 2] * l1y + Rm[i, 2, 2] * l1z
+    ps0 = Rm[i, 0, 0] * p[0] + Rm[i, 1, 0] * p[1] + Rm[i, 2, 0] * p[2]
+    ps1 = Rm[i, 0, 1] * p[0] + Rm[i, 1, 1] * p[1] + Rm[i, 2, 1] * p[2]
+    ps2 = Rm[i, 0, 2] * p[0] + Rm[i, 1, 2] * p[1] + Rm[i, 2, 2] * p[2]
+    a1[0] = iinv[i, 0] * (ls1 * ps2 - ls2 * ps1)
+    a1[1] = iinv[i, 1] * (ls2 * ps0 - ls0 * ps2)
+    a1[2] = iinv[i, 2] * (ls0 * ps1 - ls1 * ps0)
+    b0 = Rm[i, 0, 0] * a1[0] + Rm[i, 0, 1] * a1[1] + Rm[i, 0, 2] * a1[2]
+    b1 = Rm[i, 1, 0] * a1[0] + Rm[i, 1, 1] * a1[1] + Rm[i, 1, 2] * a1[2]
+    b2 = Rm[i, 2, 0] * a1[0] + Rm[i, 2, 1] * a1[1] + Rm[i, 2, 2] * a1[2]
+    t1 = (b1 * l1z - b2 * l1y) * p[0] + (b2 * l1x - b0 * l1z) * p[1] + (b0 * l1y - b1 * l1x) * p[2]
+    den = im[i] + t1
+    if j >= 0:
+        ls0 = Rm[j, 0, 0] * l2x + Rm[j, 1, 0] * l2y + Rm[j, 2, 0] * l2z
+        ls1 = Rm[j, 0, 1] * l2x + Rm[j, 1, 1] * l2y + Rm[j, 2, 1] * l2z
+        ls2 = Rm[j, 0, 2] * l2x + Rm[j, 1, 2] * l2y + Rm[j, 2, 2] * l2z
+        ps0 = Rm[j, 0, 0] * p[0] + Rm[j, 1, 0] * p[1] + Rm[j, 2, 0] * p[2]
+        ps1 = Rm[j, 0, 1] * p[0] + Rm[j, 1, 1] * p[1] + Rm[j, 2, 1] * p[2]
+        ps2 = Rm[j, 0, 2] * p[0] + Rm[j, 1, 2] * p[1] + Rm[j, 2, 2] * p[2]
+        a2[0] = iinv[j, 0] * (ls1 * ps2 - ls2 * ps1)
+        a2[1] = iinv[j, 1] * (ls2 * ps0 - ls0 * ps2)
+        a2[2] = iinv[j, 2] * (ls0 * ps1 - ls1 * ps0)
+        b0 = Rm[j, 0, 0] * a2[0] + Rm[j, 0, 1] * a2[1] + Rm[j, 0, 2] * a2[2]
+        b1 = Rm[j, 1, 0] * a2[0] + Rm[j, 1, 1] * a2[1] + Rm[j, 1, 2] * a2[2]
+        b2 = Rm[j, 2, 0] * a2[0] + Rm[j, 2, 1] * a2[1] + Rm[j, 2, 2] * a2[2]
+        t2 = (b1 * l2z - b2 * l2y) * p[0] + (b2 * l2x - b0 * l2z) * p[1] + (b0 * l2y - b1 * l2x) * p[2]
+        den += im[j] + t2
+    if not den > 0.0:
+        return 0.0  # both bodies fixed
+    imp = (1.0 + k_rest) * vn / den  # Eq. (19) / Eq. (21), divided through by m_1
+    for k in range(3):
+        v[i, k] -= imp * im[i] * p[k]  # Eq. (16)
+        wb[i, k] -= imp * a1[k]  # Eq. (18)
+    if j >= 0:
+        for k in range(3):
+            v[j, k] += imp * im[j] * p[k]
+            wb[j, k] += imp * a2[k]
+    return imp
+
+
+@njit(cache=True)
+def _wall_contacts(kind, h, x, Rm, rb, dcode, Rp, cx, cy, lo, hi, periodic, margin, manifold_tol):
+    n = x.shape[0]
+    cap = n if dcode == 0 else 6 * n
+    wi = np.empty(cap, dtype=np.int64)
+    wg = np.empty(cap)
+    wn = np.empty((cap, 3))
+    wc = np.empty((cap, 3))
+    m = 0
+    nrm = np.empty(3)
+    c = np.empty(3)
+    for i in range(n):
+        if dcode == 0:
+            ox = x[i, 0] - cx
+            oy = x[i, 1] - cy
+            if math.sqrt(ox * ox + oy * oy) + rb[i] < Rp - margin:
+                continue
+            g = pipe_wall_contact(kind[i], h[i], x[i], Rm[i], Rp, cx, cy, manifold_tol, nrm, c)
+            wi[m] = i
+            wg[m] = g
+            for k in range(3):
+                wn[m, k] = nrm[k]
+                wc[m, k] = c[k]
+            m += 1
+        else:
+            for a in range(3):
+                if periodic[a]:
+                    continue
+                for side in (-1.0, 1.0):
+                    coord = lo[a] if side < 0.0 else hi[a]
+                    if side * (coord - x[i, a]) - rb[i] > margin:
+                        continue
+                    g = plane_wall_contact(kind[i], h[i], x[i], Rm[i], a, coord, side, manifold_tol, nrm, c)
+                    wi[m] = i
+                    wg[m] = g
+                    for k in range(3):
+                        wn[m, k] = nrm[k]
+                        wc[m, k] = c[k]
+                    m += 1
+    return wi[:m], wg[:m], wn[:m], wc[:m]
+
+
+@njit(cache=True)
+def _wall_gap(kind, h, x, R, dcode, Rp, cx, cy, lo, hi, wn, manifold_tol, nrm, c):
+    # re-measure one wall contact whose wall is identified by its stored normal
+    if dcode == 0:
+        return pipe_wall_contact(kind, h, x, R, Rp, cx, cy, manifold_tol, nrm, c)
+    a = 0
+    for k in range(3):
+        if abs(wn[k]) > 0.5:
+            a = k
+    side = 1.0 if wn[a] > 0.0 else -1.0
+    coord = hi[a] if side > 0.0 else lo[a]
+    return plane_wall_contact(kind, h, x, R, a, coord, side, manifold_tol, nrm, c)
+
+
+@njit(cache=True)
+def _resolve_kernel(
+    kind, h, mass, inertia, x, v, q, wb, fixed,
+    dcode, Rp, cx, cy, lo, hi, periodic,
+    k_rest, contact_gap, spec, overlap_tol, manifold_tol, skin, max_sweeps, max_proj, dt,
+    do_impulses, stats,
+):
+    n = x.shape[0]
+    Rm = quat_to_matrices(q)
+    rb = bounding_radii(kind, h)
+    im = np.zeros(n)
+    iinv = np.zeros((n, 3))
+    vmax = 0.0
+    for i in range(n):
+        if fixed[i]:
+            continue
+        im[i] = 1.0 / mass[i]
+        for k in range(3):
+            iinv[i, k] = 1.0 / inertia[i, k]
+        sp = math.sqrt(v[i, 0] ** 2 + v[i, 1] ** 2 + v[i, 2] ** 2)
+        sp += math.sqrt(wb[i, 0] ** 2 + wb[i, 1] ** 2 + wb[i, 2] ** 2) * rb[i]
+        vmax = max(vmax, sp)
+    # gap below which a contact can become active within this step
+    reach = contact_gap + (2.0 * vmax * dt if spec else 0.0)
+    margin = reach + skin
+    pi, pj, ps = candidate_pairs(x, rb, margin, lo, hi, periodic)
+    npair = pi.shape[0]
+    cg = np.empty(npair)
+    cn = np.empty((npair, 3))
+    cc = np.empty((npair, 3))
+    nrm = np.empty(3)
+    c = np.empty(3)
+    x2 = np.empty(3)
+    for m in range(npair):
+        i = pi[m]
+        j = pj[m]
+        for k in range(3):
+            x2[k] = x[j, k] + ps[m, k]
+        cg[m] = body_contact(kind[i], h[i], x[i], Rm[i], kind[j], h[j], x2, Rm[j], margin, manifold_tol, nrm, c)
+        for k in range(3):
+            cn[m, k] = nrm[k]
+            cc[m, k] = c[k]
+    wi, wg, wn, wc = _wall_contacts(kind, h, x, Rm, rb, dcode, Rp, cx, cy, lo, hi, periodic, margin, manifold_tol)
+    nwall = wi.shape[0]
+    ov = 0.0
+    npc = 0
+    nwc = 0
+    for m in range(npair):
+        ov = max(ov, -cg[m])
+        if cg[m] <= contact_gap:
+            npc += 1
+    for m in range(nwall):
+        ov = max(ov, -wg[m])
+        if wg[m] <= contact_gap:
+            nwc += 1
+    stats[_S_CAND] += npair
+    stats[_S_PAIR] += npc
+    stats[_S_WALL] += nwc
+    stats[_S_OVB] = max(stats[_S_OVB], ov)
+
+    # ---- impulses, Eqs. (16)-(21), Gauss-Seidel over the possibly active contacts
+    if do_impulses:
+        act = np.empty(npair, dtype=np.int64)
+        na = 0
+        for m in range(npair):
+            if cg[m] <= reach:
+                act[na] = m
+                na += 1
+        wact = np.empty(nwall, dtype=np.int64)
+        nwa = 0
+        for m in range(nwall):
+            if wg[m] <= reach:
+                wact[nwa] = m
+                nwa += 1
+        vtol = 1e-12 * vmax
+        nimp = 0
+        sweeps = 0
+        for sweep in range(max_sweeps):
+            applied = 0
+            for t in range(na):
+                m = act[t]
+                imp = _impulse(pi[m], pj[m], ps[m, 0], ps[m, 1], ps[m, 2], cc[m], cn[m], cg[m], x, v, wb, Rm, im, iinv,
+                               k_rest, contact_gap, spec, dt, vtol)
+                if imp > 0.0:
+                    applied += 1
+            for t in range(nwa):
+                m = wact[t]
+                imp = _impulse(wi[m], -1, 0.0, 0.0, 0.0, wc[m], wn[m], wg[m], x, v, wb, Rm, im, iinv,
+                               k_rest, contact_gap, spec, dt, vtol)
+                if imp > 0.0:
+                    applied += 1
+            sweeps = sweep + 1
+            nimp += applied
+            if applied == 0:
+                break
+        # contacts still approaching after the last sweep (only if max_sweeps was exhausted)
+        unres = 0
+        if sweeps == max_sweeps:
+            vsave = v.copy()
+            wsave = wb.copy()
+            for t in range(na):
+                m = act[t]
+                if _impulse(pi[m], pj[m], ps[m, 0], ps[m, 1], ps[m, 2], cc[m], cn[m], cg[m], x, vsave, wsave, Rm, im,
+                            iinv, k_rest, contact_gap, spec, dt, vtol) > 0.0:
+                    unres += 1
+            for t in range(nwa):
+                m = wact[t]
+                if _impulse(wi[m], -1, 0.0, 0.0, 0.0, wc[m], wn[m], wg[m], x, vsave, wsave, Rm, im, iinv,
+                            k_rest, contact_gap, spec, dt, vtol) > 0.0:
+                    unres += 1
+        stats[_S_IMP] += nimp
+        stats[_S_SWEEP] = max(stats[_S_SWEEP], sweeps)
+        stats[_S_UNRES] += unres
+
+    # ---- overlap projection (positions only, split by inverse mass)
+    disp = np.zeros(n)
+    d1 = np.zeros(npair)
+    d2 = np.zeros(npair)
+    dw = np.zeros(nwall)
+    it_used = 0
+    for it in range(max_proj):
+        moved = False
+        for m in range(npair):
+            i = pi[m]
+            j = pj[m]
+            bound = cg[m] - (disp[i] - d1[m]) - (disp[j] - d2[m])
+            if bound >= -overlap_tol:
+                continue
+            if disp[i] != d1[m] or disp[j] != d2[m]:
+                for k in range(3):
+                    x2[k] = x[j, k] + ps[m, k]
+                cg[m] = body_contact(kind[i], h[i], x[i], Rm[i], kind[j], h[j], x2, Rm[j], margin, manifold_tol, nrm, c)
+                for k in range(3):
+                    cn[m, k] = nrm[k]
+                    cc[m, k] = c[k]
+                d1[m] = disp[i]
+                d2[m] = disp[j]
+            if cg[m] >= -overlap_tol:
+                continue
+            wsum = im[i] + im[j]
+            if wsum <= 0.0:
+                continue  # two fixed bodies: nothing can move
+            dep = -cg[m]
+            f1 = dep * im[i] / wsum
+            f2 = dep * im[j] / wsum
+            for k in range(3):
+                x[i, k] -= f1 * cn[m, k]
+                x[j, k] += f2 * cn[m, k]
+            disp[i] += f1
+            disp[j] += f2
+            # the EPA normal is the minimum translation: after it the pair just touches
+            cg[m] = 0.0
+            d1[m] = disp[i]
+            d2[m] = disp[j]
+            moved = True
+        for m in range(nwall):
+            i = wi[m]
+            bound = wg[m] - (disp[i] - dw[m])
+            if bound >= -overlap_tol:
+                continue
+            if disp[i] != dw[m]:
+                wg[m] = _wall_gap(kind[i], h[i], x[i], Rm[i], dcode, Rp, cx, cy, lo, hi, wn[m], manifold_tol, nrm, c)
+                for k in range(3):
+                    wn[m, k] = nrm[k]
+                    wc[m, k] = c[k]
+                dw[m] = disp[i]
+            if wg[m] >= -overlap_tol or im[i] <= 0.0:
+                continue
+            dep = -wg[m]
+            for k in range(3):
+                x[i, k] -= dep * wn[m, k]
+            disp[i] += dep
+            # the farthest point need not lie on the normal through the contact point: re-measure
+            wg[m] = _wall_gap(kind[i], h[i], x[i], Rm[i], dcode, Rp, cx, cy, lo, hi, wn[m], manifold_tol, nrm, c)
+            for k in range(3):
+                wn[m, k] = nrm[k]
+                wc[m, k] = c[k]
+            dw[m] = disp[i]
+            moved = True
+        it_used = it + 1
+        if not moved:
+            break
+    # final overlaps: re-measure everything that could be overlapping
+    ova = 0.0
+    for m in range(npair):
+        i = pi[m]
+        j = pj[m]
+        bound = cg[m] - (disp[i] - d1[m]) - (disp[j] - d2[m])
+        if bound < 0.0:
+            for k in range(3):
+                x2[k] = x[j, k] + ps[m, k]
+            bound = body_contact(kind[i], h[i], x[i], Rm[i], kind[j], h[j], x2, Rm[j], margin, manifold_tol, nrm, c)
+        ova = max(ova, -bound)
+    for m in range(nwall):
+        i = wi[m]
+        bound = wg[m] - (disp[i] - dw[m])
+        if bound < 0.0:
+            bound = _wall_gap(kind[i], h[i], x[i], Rm[i], dcode, Rp, cx, cy, lo, hi, wn[m], manifold_tol, nrm, c)
+        ova = max(ova, -bound)
+    maxdisp = 0.0
+    for i in range(n):
+        maxdisp = max(maxdisp, disp[i])
+    stats[_S_OVA] = ova
+    stats[_S_PROJ] += it_used
+    stats[_S_DISP] = max(stats[_S_DISP], maxdisp)
+    return maxdisp, margin
+
+
+def _check_periodic(domain_arrays, rb_max: float, margin: float) -> None:
+    _, _, _, _, lo, hi, periodic = domain_arrays
+    for a in range(3):
+        if periodic[a] and (hi[a] - lo[a]) < 2.0 * (2.0 * rb_max + margin):
+            raise ValueError(
+                f"periodic length {hi[a] - lo[a]:g} along axis {'xyz'[a]} is shorter than two interaction "
+                f"ranges (2 x {2.0 * rb_max + margin:g}): a pair would interact with two images"
+            )
+
+
+def resolve_collisions(bodies: Bodies, domain: Domain, params: CollisionParams, dt: float) -> dict:
+    """Detect all particle-particle and particle-wall contacts, apply the impulses of
+    Eqs. (16)-(21) (in place on ``bodies.v`` and ``bodies.wb``) and project overlaps away (in place
+    on ``bodies.x``). See the module docstring for the model and the overlap bound.
+
+    Returns stats: ``candidates`` (broad-phase pairs), ``pair_contacts`` and ``wall_contacts``
+    (gap <= contact_gap), ``impulses`` (applied), ``max_overlap_before`` (largest overlap seen
+    before the projection), ``max_overlap_after`` (after it; <= overlap_tol unless the projection
+    was exhausted), ``sweeps``, ``projection_iters``, ``unresolved`` (contacts still approaching
+    after max_sweeps), ``max_displacement`` (largest projection shift of a body), ``passes``.
+    """
+    n = bodies.n
+    stats = np.zeros(_NSTATS)
+    if n == 0:
+        return _stats_dict(stats, 0)
+    dom = domain.arrays()
+    dcode, Rp, cx, cy, lo, hi, periodic = dom
+    rb = bounding_radii(bodies.kind, bodies.h)
+    moving = ~bodies.fixed
+    speed = np.linalg.norm(bodies.v, axis=1) + np.linalg.norm(bodies.wb, axis=1) * rb
+    vmax = float(np.max(speed[moving])) if np.any(moving) else 0.0
+    margin = params.contact_gap + (2.0 * vmax * dt if params.speculative else 0.0) + params.skin
+    _check_periodic(dom, float(np.max(rb)), margin)
+    passes = 0
+    for p in range(4):
+        maxdisp, _ = _resolve_kernel(
+            bodies.kind, bodies.h, bodies.mass, bodies.inertia, bodies.x, bodies.v, bodies.q, bodies.wb, bodies.fixed,
+            dcode, Rp, cx, cy, lo, hi, periodic,
+            float(params.restitution), float(params.contact_gap), bool(params.speculative), float(params.overlap_tol),
+            float(params.manifold_tol), float(params.skin), int(params.max_sweeps), int(params.max_projection_iters),
+            float(dt), p == 0, stats,
+        )
+        passes += 1
+        # bodies pushed further than half the skin may meet pairs outside the list: rebuild it
+        if maxdisp <= 0.5 * params.skin:
+            break
+    return _stats_dict(stats, passes)
+
+
+def _stats_dict(stats: np.ndarray, passes: int) -> dict:
+    return {
+        "candidates": int(stats[_S_CAND]),
+        "pair_contacts": int(stats[_S_PAIR]),
+        "wall_contacts": int(stats[_S_WALL]),
+        "impulses": int(stats[_S_IMP]),
+        "max_overlap_before": float(stats[_S_OVB]),
+        "max_overlap_after": float(stats[_S_OVA]),
+        "sweeps": int(stats[_S_SWEEP]),
+        "projection_iters": int(stats[_S_PROJ]),
+        "unresolved": int(stats[_S_UNRES]),
+        "max_displacement": float(stats[_S_DISP]),
+        "passes": int(passes),
+    }

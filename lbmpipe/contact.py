@@ -1,0 +1,1399 @@
+"""Contact detection between cylinders, cubes and spheres, and between a body and the walls.
+
+This supplies what the impulse model of Eqs. (16)-(21) needs from geometry: for two bodies the
+signed gap, the unit normal ``p`` pointing from body 1 to body 2, and the contact point ``O``
+(lab frame); for a body and a wall the same with the wall as body 2 (``p`` points from the body
+into the wall).
+
+Narrow phase (``body_contact``)
+-------------------------------
+- sphere-sphere: exact, from the centre distance;
+- sphere-X: GJK between the sphere's centre (a point) and X, then the sphere radius is
+  subtracted (exact, and GJK on a point converges fast); falls back to the general path if the
+  centre is inside X;
+- general: GJK (Gilbert-Johnson-Keerthi, closest point of the Minkowski difference
+  ``D = A - B`` to the origin, simplex sub-problems by Voronoi regions as in Ericson,
+  *Real-Time Collision Detection*, 5.1) on the support functions of ``lbmpipe.shapes``; if the
+  bodies overlap, EPA (expanding polytope) gives the penetration depth and normal, i.e. the
+  smallest translation of body 2 that separates them.
+- signed gap: ``+distance`` when separated, ``-depth`` when overlapping. Accuracy: GJK stops when
+  the gap is bracketed to ``1e-9`` of the body size, EPA when its support gap is below ``1e-7``
+  of the body size (curved surfaces converge slowly in EPA; with the ``EPA_MAX_VERTS`` cap an
+  overlap is over-estimated by at most a few ``1e-4`` of the size).
+
+Contact point. GJK/EPA return one witness point per body. Where flat features meet (cube face on
+cube face, cylinder side on cylinder side, cap on face...) the witness is an arbitrary point of the
+contact patch, and an impulse there would spin the bodies spuriously. So the contact point is the
+centroid of the contact patch: the support features of both bodies along the normal (vertex, edge,
+face of a cube; rim point, side segment or cap disc (a 16-gon) of a cylinder), taken within
+``manifold_tol`` of the extreme, are projected onto the contact plane and intersected; the centroid
+of that convex polygon (or the midpoint of the overlap of two segments) is the in-plane position of
+``O``; its normal coordinate is the midpoint of the witness points. ``manifold_tol`` is a length
+(default in the callers: 0.1 lattice spacing): a face tilted so that its far edge is within it of the
+near edge counts as flat.
+
+Walls
+-----
+- pipe wall (``pipe_wall_contact``), a cylinder of radius ``R`` about the axis through
+  ``(cx, cy)`` along z: gap = ``R - max`` distance of a body point from the axis. Exact per shape:
+  sphere from its centre; cube from its 8 vertices (a convex function is maximised at a vertex);
+  cylinder from its two rim circles, each sampled at 32 angles and every local maximum refined by
+  Newton's method on ``rho^2(theta)``. Where several points are within ``manifold_tol`` of the
+  maximum (a cube face or cylinder side lying against the wall, a cap facing the wall) the contact
+  point is their mean and the normal the radial unit vector through it, so a symmetric contact
+  applies no torque.
+- planar walls (``plane_wall_contact``) at ``x = c`` with outward side ``+-1``: gap from the support
+  point; contact point the centroid of the support feature.
+
+Broad phase (``candidate_pairs``)
+---------------------------------
+Cell list on bounding spheres (cells of edge ``2 max r_b + margin``), so the cost is linear in
+the number of bodies; periodic axes wrap the cells and the pair gets the minimum-image shift
+``s`` (body 2 is at ``x_2 + s``). A periodic length must be at least two cells.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+from .rigid import quat_to_matrix
+from .shapes import CUBE, CYLINDER, SPHERE, bounding_radius, support_body
+
+GJK_MAX_ITER = 128
+EPA_MAX_VERTS = 128
+EPA_MAX_FACES = 4 * EPA_MAX_VERTS
+GJK_REL_TOL = 1e-9
+EPA_REL_TOL = 1e-7
+DISC_SIDES = 16
+RIM_SAMPLES = 32
+
+# Status codes of _gjk
+_SEPARATED = 0
+_INTERSECTING = 1
+_FAR = 2
+
+
+# ------------------------------------------------------------------------------------------------
+# small vector helpers
+
+
+@njit(cache=True)
+def _dot(a, b):
+    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+
+
+@njit(cache=True)
+def _cross_into(a, b, out):
+    x = a[1] * b[2] - a[2] * b[1]
+    y = a[2] * b[0] - a[0] * b[2]
+    z = a[0] * b[1] - a[1] * b[0]
+    out[0] = x
+    out[1] = y
+    out[2] = z
+
+
+@njit(cache=True)
+def _support_lab(kind, h, x, R, core, d, out, tb, ts):
+    # core: the body is replaced by its centre (a sphere treated as point + margin)
+    if core:
+        out[0] = x[0]
+        out[1] = x[1]
+        out[2] = x[2]
+        return
+    for k in range(3):
+        tb[k] = R[0, k] * d[0] + R[1, k] * d[1] + R[2, k] * d[2]
+    support_body(kind, h, tb, ts)
+    for k in range(3):
+        out[k] = x[k] + R[k, 0] * ts[0] + R[k, 1] * ts[1] + R[k, 2] * ts[2]
+
+
+# ------------------------------------------------------------------------------------------------
+# GJK: closest point of a simplex to the origin (Ericson 5.1), reducing the simplex in place
+
+
+@njit(cache=True)
+def _keep(W, WA, WB, lam, idx, m):
+    # compact rows idx[0..m-1] to the front (idx ascending, so no row is overwritten too early)
+    for r in range(m):
+        s = idx[r]
+        if s != r:
+            for k in range(3):
+                W[r, k] = W[s, k]
+                WA[r, k] = WA[s, k]
+                WB[r, k] = WB[s, k]
+            lam[r] = lam[s]
+
+
+@njit(cache=True)
+def _closest_triangle(a, b, c, res):
+    """Barycentric weights (res[0..2]) of the point of triangle abc closest to the origin."""
+    ab0 = b[0] - a[0]
+    ab1 = b[1] - a[1]
+    ab2 = b[2] - a[2]
+    ac0 = c[0] - a[0]
+    ac1 = c[1] - a[1]
+    ac2 = c[2] - a[2]
+    d1 = -(ab0 * a[0] + ab1 * a[1] + ab2 * a[2])
+    d2 = -(ac0 * a[0] + ac1 * a[1] + ac2 * a[2])
+    if d1 <= 0.0 and d2 <= 0.0:
+        res[0], res[1], res[2] = 1.0, 0.0, 0.0
+        return
+    d3 = -(ab0 * b[0] + ab1 * b[1] + ab2 * b[2])
+    d4 = -(ac0 * b[0] + ac1 * b[1] + ac2 * b[2])
+    if d3 >= 0.0 and d4 <= d3:
+        res[0], res[1], res[2] = 0.0, 1.0, 0.0
+        return
+    vc = d1 * d4 - d3 * d2
+    if vc <= 0.0 and d1 >= 0.0 and d3 <= 0.0:
+        t = d1 / (d1 - d3)
+        res[0], res[1], res[2] = 1.0 - t, t, 0.0
+        return
+    d5 = -(ab0 * c[0] + ab1 * c[1] + ab2 * c[2])
+    d6 = -(ac0 * c[0] + ac1 * c[1] + ac2 * c[2])
+    if d6 >= 0.0 and d5 <= d6:
+        res[0], res[1], res[2] = 0.0, 0.0, 1.0
+        return
+    vb = d5 * d2 - d1 * d6
+    if vb <= 0.0 and d2 >= 0.0 and d6 <= 0.0:
+        t = d2 / (d2 - d6)
+        res[0], res[1], res[2] = 1.0 - t, 0.0, t
+        return
+    va = d3 * d6 - d5 * d4
+    if va <= 0.0 and (d4 - d3) >= 0.0 and (d5 - d6) >= 0.0:
+        t = (d4 - d3) / ((d4 - d3) + (d5 - d6))
+        res[0], res[1], res[2] = 0.0, 1.0 - t, t
+        return
+    den = va + vb + vc
+    if not den > 0.0:
+        # degenerate (collinear) triangle: best of the three edges
+        best = 1e300
+        for e in range(3):
+            p = a if e == 0 else (b if e == 1 else c)
+            qv = b if e == 0 else (c if e == 1 else a)
+            dx = qv[0] - p[0]
+            dy = qv[1] - p[1]
+            dz = qv[2] - p[2]
+            ll = dx * dx + dy * dy + dz * dz
+            t = 0.0
+            if ll > 0.0:
+                t = -(p[0] * dx + p[1] * dy + p[2] * dz) / ll
+                t = min(1.0, max(0.0, t))
+            px = p[0] + t * dx
+            py = p[1] + t * dy
+            pz = p[2] + t * dz
+            dd = px * px + py * py + pz * pz
+            if dd < best:
+                best = dd
+                r0 = 0.0
+                r1 = 0.0
+                r2 = 0.0
+                if e == 0:
+                    r0, r1 = 1.0 - t, t
+                elif e == 1:
+                    r1, r2 = 1.0 - t, t
+                else:
+                    r2, r0 = 1.0 - t, t
+                res[0], res[1], res[2] = r0, r1, r2
+        return
+    inv = 1.0 / den
+    v = vb * inv
+    w = vc * inv
+    res[0], res[1], res[2] = 1.0 - v - w, v, w
+
+
+@njit(cache=True)
+def _simplex_closest(W, WA, WB, n, lam, v):
+    """Closest point ``v`` of the simplex W[0..n-1] to the origin; reduces the simplex to the
+    vertices with non-zero weight (stored first, weights in ``lam``). Returns the new size, or 4
+    if the origin is inside the tetrahedron."""
+    idx = np.empty(4, dtype=np.int64)
+    if n == 1:
+        lam[0] = 1.0
+        v[0], v[1], v[2] = W[0, 0], W[0, 1], W[0, 2]
+        return 1
+    if n == 2:
+        dx = W[1, 0] - W[0, 0]
+        dy = W[1, 1] - W[0, 1]
+        dz = W[1, 2] - W[0, 2]
+        ll = dx * dx + dy * dy + dz * dz
+        t = 0.0
+        if ll > 0.0:
+            t = -(W[0, 0] * dx + W[0, 1] * dy + W[0, 2] * dz) / ll
+        if t <= 0.0:
+            lam[0] = 1.0
+            v[0], v[1], v[2] = W[0, 0], W[0, 1], W[0, 2]
+            return 1
+        if t >= 1.0:
+            idx[0] = 1
+            lam[1] = 1.0
+            _keep(W, WA, WB, lam, idx, 1)
+            v[0], v[1], v[2] = W[0, 0], W[0, 1], W[0, 2]
+            return 1
+        lam[0] = 1.0 - t
+        lam[1] = t
+        for k in range(3):
+            v[k] = W[0, k] + t * (W[1, k] - W[0, k])
+        return 2
+    res = np.empty(3)
+    if n == 3:
+        _closest_triangle(W[0], W[1], W[2], res)
+        m = 0
+        for r in range(3):
+            if res[r] > 0.0:
+                idx[m] = r
+                lam[r] = res[r]
+                m += 1
+        _keep(W, WA, WB, lam, idx, m)
+        for k in range(3):
+            v[k] = 0.0
+            for r in range(m):
+                v[k] += lam[r] * W[r, k]
+        return m
+    # tetrahedron: test the origin against each face (opposite vertex o)
+    best = 1e300
+    bestf = -1
+    bres = np.zeros(3)
+    nrm = np.empty(3)
+    e1 = np.empty(3)
+    e2 = np.empty(3)
+    for f in range(4):
+        i0 = (f + 1) % 4
+        i1 = (f + 2) % 4
+        i2 = (f + 3) % 4
+        for k in range(3):
+            e1[k] = W[i1, k] - W[i0, k]
+            e2[k] = W[i2, k] - W[i0, k]
+        _cross_into(e1, e2, nrm)
+        sp = -(nrm[0] * W[i0, 0] + nrm[1] * W[i0, 1] + nrm[2] * W[i0, 2])
+        sd = nrm[0] * (W[f, 0] - W[i0, 0]) + nrm[1] * (W[f, 1] - W[i0, 1]) + nrm[2] * (W[f, 2] - W[i0, 2])
+        outside = sp * sd < 0.0 or sd * sd <= 1e-24 * (_dot(e1, e1) * _dot(e2, e2) + 1e-300)
+        if not outside:
+            continue
+        _closest_triangle(W[i0], W[i1], W[i2], res)
+        px = res[0] * W[i0, 0] + res[1] * W[i1, 0] + res[2] * W[i2, 0]
+        py = res[0] * W[i0, 1] + res[1] * W[i1, 1] + res[2] * W[i2, 1]
+        pz = res[0] * W[i0, 2] + res[1] * W[i1, 2] + res[2] * W[i2, 2]
+        dd = px * px + py * py + pz * pz
+        if dd < best:
+            best = dd
+            bestf = f
+            bres[0], bres[1], bres[2] = res[0], res[1], res[2]
+    if bestf < 0:
+        return 4
+    i0 = (bestf + 1) % 4
+    i1 = (bestf + 2) % 4
+    i2 = (bestf + 3) % 4
+    # sort the kept indices ascending so that _keep never overwrites a row it still needs
+    wts = np.zeros(4)
+    wts[i0] = bres[0]
+    wts[i1] = bres[1]
+    wts[i2] = bres[2]
+    m = 0
+    for r in range(4):
+        if wts[r] > 0.0:
+            idx[m] = r
+            lam[r] = wts[r]
+            m += 1
+    _keep(W, WA, WB, lam, idx, m)
+    for k in range(3):
+        v[k] = 0.0
+        for r in range(m):
+            v[k] += lam[r] * W[r, k]
+    return m
+
+
+@njit(cache=True)
+def _gjk(k1, h1, x1, R1, c1, k2, h2, x2, R2, c2, scale, max_gap, W, WA, WB, lam, pa, pb, v):
+    """GJK on D = A - B. Returns (status, dist, n): separated (dist, witnesses pa/pb, v = pa - pb),
+    intersecting (simplex W[0..n-1] holds the origin, for EPA) or far (dist is a lower bound
+    greater than max_gap)."""
+    d = np.empty(3)
+    sa = np.empty(3)
+    sb = np.empty(3)
+    tb = np.empty(3)
+    ts = np.empty(3)
+    for k in range(3):
+        v[k] = x1[k] - x2[k]
+    if _dot(v, v) <= (1e-12 * scale) ** 2:
+        v[0], v[1], v[2] = scale, 0.0, 0.0
+    n = 0
+    tol = GJK_REL_TOL * scale
+    for _it in range(GJK_MAX_ITER):
+        for k in range(3):
+            d[k] = -v[k]
+        _support_lab(k1, h1, x1, R1, c1, d, sa, tb, ts)
+        for k in range(3):
+            d[k] = v[k]
+        _support_lab(k2, h2, x2, R2, c2, d, sb, tb, ts)
+        w0 = sa[0] - sb[0]
+        w1 = sa[1] - sb[1]
+        w2 = sa[2] - sb[2]
+        vw = v[0] * w0 + v[1] * w1 + v[2] * w2
+        vv = _dot(v, v)
+        if n > 0:
+            if vw > 0.0 and vw * vw > max_gap * max_gap * vv:
+                return _FAR, vw / math.sqrt(vv), n
+            if vv - vw <= tol * math.sqrt(vv):
+                break
+            dup = False
+            for r in range(n):
+                dx = W[r, 0] - w0
+                dy = W[r, 1] - w1
+                dz = W[r, 2] - w2
+                if dx * dx + dy * dy + dz * dz <= (1e-14 * scale) ** 2:
+                    dup = True
+            if dup:
+                break
+        W[n, 0], W[n, 1], W[n, 2] = w0, w1, w2
+        for k in range(3):
+            WA[n, k] = sa[k]
+            WB[n, k] = sb[k]
+        n += 1
+        n = _simplex_closest(W, WA, WB, n, lam, v)
+        if n == 4 or _dot(v, v) <= (1e-10 * scale) ** 2:
+            return _INTERSECTING, 0.0, n
+    for k in range(3):
+        pa[k] = 0.0
+        pb[k] = 0.0
+        for r in range(n):
+            pa[k] += lam[r] * WA[r, k]
+            pb[k] += lam[r] * WB[r, k]
+    return _SEPARATED, math.sqrt(_dot(v, v)), n
+
+
+# ------------------------------------------------------------------------------------------------
+# EPA
+
+
+@njit(cache=True)
+def _epa_face(V, F, FN, FD, f, a, b, c, scale):
+    F[f, 0], F[f, 1], F[f, 2] = a, b, c
+    e1x = V[b, 0] - V[a, 0]
+    e1y = V[b, 1] - V[a, 1]
+    e1z = V[b, 2] - V[a, 2]
+    e2x = V[c, 0] - V[a, 0]
+    e2y = V[c, 1] - V[a, 1]
+    e2z = V[c, 2] - V[a, 2]
+    nx = e1y * e2z - e1z * e2y
+    ny = e1z * e2x - e1x * e2z
+    nz = e1x * e2y - e1y * e2x
+    ln = math.sqrt(nx * nx + ny * ny + nz * nz)
+    if ln <= 1e-14 * scale * scale:
+        FN[f, 0], FN[f, 1], FN[f, 2] = 0.0, 0.0, 0.0
+        FD[f] = 1e300  # sliver: never the closest, never visible
+        return
+    FN[f, 0], FN[f, 1], FN[f, 2] = nx / ln, ny / ln, nz / ln
+    FD[f] = (nx * V[a, 0] + ny * V[a, 1] + nz * V[a, 2]) / ln
+
+
+@njit(cache=True)
+def _blow_up(k1, h1, x1, R1, k2, h2, x2, R2, scale, V, VA, VB, n):
+    """Grow a GJK simplex of n < 4 vertices that touches the origin into a tetrahedron (libccd's
+    approach). Returns the new vertex count (4 on success)."""
+    d = np.empty(3)
+    sa = np.empty(3)
+    sb = np.empty(3)
+    tb = np.empty(3)
+    ts = np.empty(3)
+    eps = 1e-9 * scale
+    dirs = np.array([[1.0, 0, 0], [-1.0, 0, 0], [0, 1.0, 0], [0, -1.0, 0], [0, 0, 1.0], [0, 0, -1.0]])
+    if n == 1:
+        for t in range(6):
+            for k in range(3):
+                d[k] = dirs[t, k]
+            _support_lab(k1, h1, x1, R1, False, d, sa, tb, ts)
+            for k in range(3):
+                d[k] = -dirs[t, k]
+            _support_lab(k2, h2, x2, R2, False, d, sb, tb, ts)
+            dd = 0.0
+            for k in range(3):
+                dd += (sa[k] - sb[k] - V[0, k]) ** 2
+            if dd > eps * eps:
+                for k in range(3):
+                    V[1, k] = sa[k] - sb[k]
+                    VA[1, k] = sa[k]
+                    VB[1, k] = sb[k]
+                n = 2
+                break
+        if n < 2:
+            return n
+    if n == 2:
+        e = np.empty(3)
+        for k in range(3):
+            e[k] = V[1, k] - V[0, k]
+        le = math.sqrt(_dot(e, e))
+        for k in range(3):
+            e[k] /= le
+        # a unit vector perpendicular to e
+        ax = 0
+        if abs(e[1]) < abs(e[ax]):
+            ax = 1
+        if abs(e[2]) < abs(e[ax]):
+            ax = 2
+        u = np.zeros(3)
+        u[ax] = 1.0
+        u0 = np.empty(3)
+        _cross_into(e, u, u0)
+        l0 = math.sqrt(_dot(u0, u0))
+        for k in range(3):
+            u0[k] /= l0
+        u1 = np.empty(3)
+        _cross_into(e, u0, u1)
+        for t in range(6):
+            ang = t * math.pi / 3.0
+            for k in range(3):
+                d[k] = math.cos(ang) * u0[k] + math.sin(ang) * u1[k]
+            _support_lab(k1, h1, x1, R1, False, d, sa, tb, ts)
+            for k in range(3):
+                d[k] = -d[k]
+            _support_lab(k2, h2, x2, R2, False, d, sb, tb, ts)
+            # distance of the new point from the line of the segment
+            wx = sa[0] - sb[0] - V[0, 0]
+            wy = sa[1] - sb[1] - V[0, 1]
+            wz = sa[2] - sb[2] - V[0, 2]
+            pr = wx * e[0] + wy * e[1] + wz * e[2]
+            ox = wx - pr * e[0]
+            oy = wy - pr * e[1]
+            oz = wz - pr * e[2]
+            if ox * ox + oy * oy + oz * oz > eps * eps:
+                for k in range(3):
+                    V[2, k] = sa[k] - sb[k]
+                    VA[2, k] = sa[k]
+                    VB[2, k] = sb[k]
+                n = 3
+                break
+        if n < 3:
+            return n
+    if n == 3:
+        e1 = np.empty(3)
+        e2 = np.empty(3)
+        nn = np.empty(3)
+        for k in range(3):
+            e1[k] = V[1, k] - V[0, k]
+            e2[k] = V[2, k] - V[0, k]
+        _cross_into(e1, e2, nn)
+        ln = math.sqrt(_dot(nn, nn))
+        for k in range(3):
+            nn[k] /= ln
+        for sgn in (1.0, -1.0):
+            for k in range(3):
+                d[k] = sgn * nn[k]
+            _support_lab(k1, h1, x1, R1, False, d, sa, tb, ts)
+            for k in range(3):
+                d[k] = -d[k]
+            _support_lab(k2, h2, x2, R2, False, d, sb, tb, ts)
+            off = 0.0
+            for k in range(3):
+                off += (sa[k] - sb[k] - V[0, k]) * nn[k]
+            if abs(off) > eps:
+                for k in range(3):
+                    V[3, k] = sa[k] - sb[k]
+                    VA[3, k] = sa[k]
+                    VB[3, k] = sb[k]
+                n = 4
+                break
+    return n
+
+
+@njit(cache=True)
+def _epa(k1, h1, x1, R1, k2, h2, x2, R2, scale, W, WA, WB, n, nrm, pa, pb):
+    """Penetration depth (>= 0) of intersecting A, B and its normal ``nrm`` (the direction in
+    which B must move to separate, i.e. from A to B) with witness points. Returns -1 if the
+    Minkowski difference is degenerate (flat), which the caller treats as a touching contact."""
+    V = np.empty((EPA_MAX_VERTS, 3))
+    VA = np.empty((EPA_MAX_VERTS, 3))
+    VB = np.empty((EPA_MAX_VERTS, 3))
+    for r in range(n):
+        for k in range(3):
+            V[r, k] = W[r, k]
+            VA[r, k] = WA[r, k]
+            VB[r, k] = WB[r, k]
+    if n < 4:
+        n = _blow_up(k1, h1, x1, R1, k2, h2, x2, R2, scale, V, VA, VB, n)
+        if n < 4:
+            return -1.0
+    F = np.empty((EPA_MAX_FACES, 3), dtype=np.int64)
+    FN = np.empty((EPA_MAX_FACES, 3))
+    FD = np.empty(EPA_MAX_FACES)
+    alive = np.zeros(EPA_MAX_FACES, dtype=np.bool_)
+    # initial tetrahedron, faces oriented outward (away from the opposite vertex)
+    e1 = np.empty(3)
+    e2 = np.empty(3)
+    nn = np.empty(3)
+    for k in range(3):
+        e1[k] = V[1, k] - V[0, k]
+        e2[k] = V[2, k] - V[0, k]
+    _cross_into(e1, e2, nn)
+    vol = nn[0] * (V[3, 0] - V[0, 0]) + nn[1] * (V[3, 1] - V[0, 1]) + nn[2] * (V[3, 2] - V[0, 2])
+    if abs(vol) <= 1e-15 * scale ** 3:
+        return -1.0
+    if vol > 0.0:
+        # make (0,1,2) wind clockwise seen from vertex 3 -> swap vertices 1 and 2
+        for k in range(3):
+            t = V[1, k]
+            V[1, k] = V[2, k]
+            V[2, k] = t
+            t = VA[1, k]
+            VA[1, k] = VA[2, k]
+            VA[2, k] = t
+            t = VB[1, k]
+            VB[1, k] = VB[2, k]
+            VB[2, k] = t
+    _epa_face(V, F, FN, FD, 0, 0, 1, 2, scale)
+    _epa_face(V, F, FN, FD, 1, 0, 3, 1, scale)
+    _epa_face(V, F, FN, FD, 2, 0, 2, 3, scale)
+    _epa_face(V, F, FN, FD, 3, 1, 3, 2, scale)
+    for f in range(4):
+        alive[f] = True
+    nf = 4
+    nv = 4
+    tol = EPA_REL_TOL * scale
+    d = np.empty(3)
+    sa = np.empty(3)
+    sb = np.empty(3)
+    tb = np.empty(3)
+    ts = np.empty(3)
+    edges = np.empty((3 * EPA_MAX_FACES, 2), dtype=np.int64)
+    best = 0
+    while True:
+        best = -1
+        bd = 1e301
+        for f in range(nf):
+            if alive[f] and FD[f] < bd:
+                bd = FD[f]
+                best = f
+        if best < 0:
+            return -1.0
+        for k in range(3):
+            d[k] = FN[best, k]
+        _support_lab(k1, h1, x1, R1, False, d, sa, tb, ts)
+        for k in range(3):
+            d[k] = -d[k]
+        _support_lab(k2, h2, x2, R2, False, d, sb, tb, ts)
+        sd = (sa[0] - sb[0]) * FN[best, 0] + (sa[1] - sb[1]) * FN[best, 1] + (sa[2] - sb[2]) * FN[best, 2]
+        if sd - bd <= tol or nv >= EPA_MAX_VERTS:
+            break
+        # compact dead faces if the face table is getting full
+        if nf + nv + 1 > EPA_MAX_FACES:
+            m = 0
+            for f in range(nf):
+                if alive[f]:
+                    if m != f:
+                        F[m] = F[f]
+                        FN[m] = FN[f]
+                        FD[m] = FD[f]
+                    alive[m] = True
+                    m += 1
+            for f in range(m, nf):
+                alive[f] = False
+            nf = m
+            if nf + nv + 1 > EPA_MAX_FACES:
+                break
+            continue
+        iv = nv
+        for k in range(3):
+            V[iv, k] = sa[k] - sb[k]
+            VA[iv, k] = sa[k]
+            VB[iv, k] = sb[k]
+        nv += 1
+        ne = 0
+        for f in range(nf):
+            if not alive[f]:
+                continue
+            a = F[f, 0]
+            vis = FN[f, 0] * (V[iv, 0] - V[a, 0]) + FN[f, 1] * (V[iv, 1] - V[a, 1]) + FN[f, 2] * (V[iv, 2] - V[a, 2])
+            if vis > 1e-12 * scale:
+                alive[f] = False
+                for t in range(3):
+                    ea = F[f, t]
+                    eb = F[f, (t + 1) % 3]
+                    found = -1
+                    for r in range(ne):
+                        if edges[r, 0] == eb and edges[r, 1] == ea:
+                            found = r
+                            break
+                    if found >= 0:
+                        edges[found, 0] = edges[ne - 1, 0]
+                        edges[found, 1] = edges[ne - 1, 1]
+                        ne -= 1
+                    else:
+                        edges[ne, 0] = ea
+                        edges[ne, 1] = eb
+                        ne += 1
+        for r in range(ne):
+            _epa_face(V, F, FN, FD, nf, edges[r, 0], edges[r, 1], iv, scale)
+            alive[nf] = True
+            nf += 1
+    # witness points from the barycentric coordinates of the origin's projection on the face
+    depth = FD[best]
+    a = F[best, 0]
+    b = F[best, 1]
+    c = F[best, 2]
+    px = depth * FN[best, 0]
+    py = depth * FN[best, 1]
+    pz = depth * FN[best, 2]
+    v0x = V[b, 0] - V[a, 0]
+    v0y = V[b, 1] - V[a, 1]
+    v0z = V[b, 2] - V[a, 2]
+    v1x = V[c, 0] - V[a, 0]
+    v1y = V[c, 1] - V[a, 1]
+    v1z = V[c, 2] - V[a, 2]
+    v2x = px - V[a, 0]
+    v2y = py - V[a, 1]
+    v2z = pz - V[a, 2]
+    d00 = v0x * v0x + v0y * v0y + v0z * v0z
+    d01 = v0x * v1x + v0y * v1y + v0z * v1z
+    d11 = v1x * v1x + v1y * v1y + v1z * v1z
+    d20 = v2x * v0x + v2y * v0y + v2z * v0z
+    d21 = v2x * v1x + v2y * v1y + v2z * v1z
+    den = d00 * d11 - d01 * d01
+    lb = 1.0 / 3.0
+    lc = 1.0 / 3.0
+    if den > 0.0:
+        lb = (d11 * d20 - d01 * d21) / den
+        lc = (d00 * d21 - d01 * d20) / den
+        lb = min(1.0, max(0.0, lb))
+        lc = min(1.0 - lb, max(0.0, lc))
+    la = 1.0 - lb - lc
+    for k in range(3):
+        nrm[k] = FN[best, k]
+        pa[k] = la * VA[a, k] + lb * VA[b, k] + lc * VA[c, k]
+        pb[k] = la * VB[a, k] + lb * VB[b, k] + lc * VB[c, k]
+    return max(depth, 0.0)
+
+
+# ------------------------------------------------------------------------------------------------
+# contact features (for the contact-patch centroid)
+
+
+@njit(cache=True)
+def _feature(kind, h, x, R, n, tol, out):
+    """Lab points (rows of ``out``) of the face/edge/vertex of the body that is extreme along the
+    unit lab direction ``n``, within ``tol`` of the extreme. Polygons are returned in cyclic
+    order. Returns the number of points."""
+    d0 = R[0, 0] * n[0] + R[1, 0] * n[1] + R[2, 0] * n[2]
+    d1 = R[0, 1] * n[0] + R[1, 1] * n[1] + R[2, 1] * n[2]
+    d2 = R[0, 2] * n[0] + R[1, 2] * n[1] + R[2, 2] * n[2]
+    pb = np.empty((DISC_SIDES, 3))
+    m = 0
+    if kind == SPHERE:
+        pb[0, 0], pb[0, 1], pb[0, 2] = h[0] * d0, h[0] * d1, h[0] * d2
+        m = 1
+    elif kind == CUBE:
+        dd = np.array([d0, d1, d2])
+        s = np.empty(3)
+        free = np.zeros(3, dtype=np.bool_)
+        nfree = 0
+        for k in range(3):
+            s[k] = h[k] if dd[k] >= 0.0 else -h[k]
+            if 2.0 * h[k] * abs(dd[k]) <= tol:
+                free[k] = True
+                nfree += 1
+        if nfree == 3:
+            # only for a body smaller than tol: keep the dominant axis fixed
+            kk = 0
+            for k in range(3):
+                if abs(dd[k]) > abs(dd[kk]):
+                    kk = k
+            free[kk] = False
+            nfree = 2
+        if nfree == 0:
+            pb[0, 0], pb[0, 1], pb[0, 2] = s[0], s[1], s[2]
+            m = 1
+        elif nfree == 1:
+            for k in range(3):
+                pb[0, k] = s[k]
+                pb[1, k] = s[k]
+                if free[k]:
+                    pb[0, k] = -h[k]
+                    pb[1, k] = h[k]
+            m = 2
+        else:
+            a = -1
+            b = -1
+            for k in range(3):
+                if free[k]:
+                    if a < 0:
+                        a = k
+                    else:
+                        b = k
+            sa_ = (-1.0, 1.0, 1.0, -1.0)
+            sb_ = (-1.0, -1.0, 1.0, 1.0)
+            for r in range(4):
+                for k in range(3):
+                    pb[r, k] = s[k]
+                pb[r, a] = sa_[r] * h[a]
+                pb[r, b] = sb_[r] * h[b]
+            m = 4
+    else:  # CYLINDER, axis = body z
+        dr = math.sqrt(d0 * d0 + d1 * d1)
+        cx = 1.0
+        cy = 0.0
+        if dr > 0.0:
+            cx = d0 / dr
+            cy = d1 / dr
+        zs = h[2] if d2 >= 0.0 else -h[2]
+        side = 2.0 * h[2] * abs(d2) <= tol
+        cap = 2.0 * h[0] * dr <= tol
+        if side and not cap:
+            pb[0, 0], pb[0, 1], pb[0, 2] = h[0] * cx, h[0] * cy, -h[2]
+            pb[1, 0], pb[1, 1], pb[1, 2] = h[0] * cx, h[0] * cy, h[2]
+            m = 2
+        elif cap:
+            for r in range(DISC_SIDES):
+                ang = 2.0 * math.pi * r / DISC_SIDES
+                pb[r, 0] = h[0] * math.cos(ang)
+                pb[r, 1] = h[0] * math.sin(ang)
+                pb[r, 2] = zs
+            m = DISC_SIDES
+        else:
+            pb[0, 0], pb[0, 1], pb[0, 2] = h[0] * cx, h[0] * cy, zs
+            m = 1
+    for r in range(m):
+        for k in range(3):
+            out[r, k] = x[k] + R[k, 0] * pb[r, 0] + R[k, 1] * pb[r, 1] + R[k, 2] * pb[r, 2]
+    return m
+
+
+@njit(cache=True)
+def _in_poly(px, py, P, m, tol):
+    # P: 2-D convex polygon (counter-clockwise if m >= 3); closed test with tolerance
+    if m == 1:
+        return (px - P[0, 0]) ** 2 + (py - P[0, 1]) ** 2 <= tol * tol
+    if m == 2:
+        dx = P[1, 0] - P[0, 0]
+        dy = P[1, 1] - P[0, 1]
+        ll = dx * dx + dy * dy
+        t = 0.0
+        if ll > 0.0:
+            t = ((px - P[0, 0]) * dx + (py - P[0, 1]) * dy) / ll
+            t = min(1.0, max(0.0, t))
+        ex = P[0, 0] + t * dx - px
+        ey = P[0, 1] + t * dy - py
+        return ex * ex + ey * ey <= tol * tol
+    for r in range(m):
+        s = (r + 1) % m
+        dx = P[s, 0] - P[r, 0]
+        dy = P[s, 1] - P[r, 1]
+        cr = dx * (py - P[r, 1]) - dy * (px - P[r, 0])
+        if cr < -tol * math.sqrt(dx * dx + dy * dy):
+            return False
+    return True
+
+
+@njit(cache=True)
+def _patch_centroid(P1, m1, P2, m2, tol, out):
+    """In-plane centroid of the intersection of two convex 2-D features (points, segments or
+    polygons). Returns False if they do not meet (within tol)."""
+    pts = np.empty((2 * DISC_SIDES + 4 * DISC_SIDES * DISC_SIDES // 4 + 8, 2))
+    cap = pts.shape[0]
+    k = 0
+    for r in range(m1):
+        if k < cap and _in_poly(P1[r, 0], P1[r, 1], P2, m2, tol):
+            pts[k, 0], pts[k, 1] = P1[r, 0], P1[r, 1]
+            k += 1
+    for r in range(m2):
+        if k < cap and _in_poly(P2[r, 0], P2[r, 1], P1, m1, tol):
+            pts[k, 0], pts[k, 1] = P2[r, 0], P2[r, 1]
+            k += 1
+    ne1 = 0 if m1 == 1 else (1 if m1 == 2 else m1)
+    ne2 = 0 if m2 == 1 else (1 if m2 == 2 else m2)
+    for r in range(ne1):
+        ax = P1[r, 0]
+        ay = P1[r, 1]
+        bx = P1[(r + 1) % m1, 0] - ax
+        by = P1[(r + 1) % m1, 1] - ay
+        for s in range(ne2):
+            cx = P2[s, 0]
+            cy = P2[s, 1]
+            dx = P2[(s + 1) % m2, 0] - cx
+            dy = P2[(s + 1) % m2, 1] - cy
+            den = bx * dy - by * dx
+            if abs(den) <= 1e-12 * (abs(bx) + abs(by)) * (abs(dx) + abs(dy)):
+                continue
+            t = ((cx - ax) * dy - (cy - ay) * dx) / den
+            u = ((cx - ax) * by - (cy - ay) * bx) / den
+            if -1e-9 <= t <= 1.0 + 1e-9 and -1e-9 <= u <= 1.0 + 1e-9 and k < cap:
+                pts[k, 0] = ax + t * bx
+                pts[k, 1] = ay + t * by
+                k += 1
+    if k == 0:
+        return False
+    # centroid of the convex hull of the collected points: sort by angle about their mean
+    mx = 0.0
+    my = 0.0
+    for r in range(k):
+        mx += pts[r, 0]
+        my += pts[r, 1]
+    mx /= k
+    my /= k
+    ang = np.empty(k)
+    for r in range(k):
+        ang[r] = math.atan2(pts[r, 1] - my, pts[r, 0] - mx)
+    order = np.argsort(ang)
+    area = 0.0
+    gx = 0.0
+    gy = 0.0
+    for r in range(k):
+        i = order[r]
+        j = order[(r + 1) % k]
+        x0 = pts[i, 0] - mx
+        y0 = pts[i, 1] - my
+        x1 = pts[j, 0] - mx
+        y1 = pts[j, 1] - my
+        cr = x0 * y1 - x1 * y0
+        area += cr
+        gx += (x0 + x1) * cr
+        gy += (y0 + y1) * cr
+    # the spread of the points sets what counts as a flat (degenerate) patch
+    spread = 0.0
+    for r in range(k):
+        spread = max(spread, abs(pts[r, 0] - mx) + abs(pts[r, 1] - my))
+    if abs(area) > 1e-9 * spread * spread and abs(area) > 0.0:
+        out[0] = mx + gx / (3.0 * area)
+        out[1] = my + gy / (3.0 * area)
+        return True
+    # points (nearly) on a line: midpoint of the two extreme ones
+    bi = 0
+    bj = 0
+    bd = -1.0
+    for r in range(k):
+        for s in range(r + 1, k):
+            dd = (pts[r, 0] - pts[s, 0]) ** 2 + (pts[r, 1] - pts[s, 1]) ** 2
+            if dd > bd:
+                bd = dd
+                bi = r
+                bj = s
+    out[0] = 0.5 * (pts[bi, 0] + pts[bj, 0])
+    out[1] = 0.5 * (pts[bi, 1] + pts[bj, 1])
+    return True
+
+
+@njit(cache=True)
+def _plane_basis(n, t1, t2):
+    ax = 0
+    if abs(n[1]) < abs(n[ax]):
+        ax = 1
+    if abs(n[2]) < abs(n[ax]):
+        ax = 2
+    u = np.zeros(3)
+    u[ax] = 1.0
+    _cross_into(n, u, t1)
+    l1 = math.sqrt(_dot(t1, t1))
+    for k in range(3):
+        t1[k] /= l1
+    _cross_into(n, t1, t2)
+
+
+@njit(cache=True)
+def _to_plane(pts3, m, base, t1, t2, P):
+    for r in range(m):
+        dx = pts3[r, 0] - base[0]
+        dy = pts3[r, 1] - base[1]
+        dz = pts3[r, 2] - base[2]
+        P[r, 0] = dx * t1[0] + dy * t1[1] + dz * t1[2]
+        P[r, 1] = dx * t2[0] + dy * t2[1] + dz * t2[2]
+    if m >= 3:
+        area = 0.0
+        for r in range(m):
+            s = (r + 1) % m
+            area += P[r, 0] * P[s, 1] - P[s, 0] * P[r, 1]
+        if area < 0.0:
+            for r in range(m // 2):
+                s = m - 1 - r
+                a0, a1 = P[r, 0], P[r, 1]
+                P[r, 0], P[r, 1] = P[s, 0], P[s, 1]
+                P[s, 0], P[s, 1] = a0, a1
+
+
+@njit(cache=True)
+def _manifold_point(k1, h1, x1, R1, k2, h2, x2, R2, nrm, base, tol, out_c):
+    """Centroid of the contact patch (module docstring); ``base`` is the witness midpoint and
+    fixes the coordinate along the normal. Leaves out_c = base if the features do not meet."""
+    f1 = np.empty((DISC_SIDES, 3))
+    f2 = np.empty((DISC_SIDES, 3))
+    m1 = _feature(k1, h1, x1, R1, nrm, tol, f1)
+    mneg = np.empty(3)
+    for k in range(3):
+        mneg[k] = -nrm[k]
+    m2 = _feature(k2, h2, x2, R2, mneg, tol, f2)
+    for k in range(3):
+        out_c[k] = base[k]
+    if m1 == 1 and m2 == 1:
+        return
+    t1 = np.empty(3)
+    t2 = np.empty(3)
+    _plane_basis(nrm, t1, t2)
+    P1 = np.empty((DISC_SIDES, 2))
+    P2 = np.empty((DISC_SIDES, 2))
+    _to_plane(f1, m1, base, t1, t2, P1)
+    _to_plane(f2, m2, base, t1, t2, P2)
+    uv = np.empty(2)
+    if m1 == 1:
+        uv[0], uv[1] = P1[0, 0], P1[0, 1]
+    elif m2 == 1:
+        uv[0], uv[1] = P2[0, 0], P2[0, 1]
+    else:
+        if not _patch_centroid(P1, m1, P2, m2, tol, uv):
+            return
+    for k in range(3):
+        out_c[k] = base[k] + uv[0] * t1[k] + uv[1] * t2[k]
+
+
+# ------------------------------------------------------------------------------------------------
+# narrow phase, public kernel
+
+
+@njit(cache=True)
+def body_contact(k1, h1, x1, R1, k2, h2, x2, R2, max_gap, manifold_tol, nrm, c):
+    """Signed gap between body 1 (kind k1, half-extents h1, centre x1, rotation matrix R1
+    body->lab) and body 2; writes the unit normal from 1 to 2 into ``nrm`` and the contact point
+    into ``c`` (both (3,)). If the gap exceeds ``max_gap`` the function may stop early and return
+    a lower bound of the gap (> max_gap); ``nrm`` and ``c`` are then only approximate."""
+    rb1 = bounding_radius(k1, h1)
+    rb2 = bounding_radius(k2, h2)
+    scale = rb1 + rb2
+    if k1 == SPHERE and k2 == SPHERE:
+        dx = x2[0] - x1[0]
+        dy = x2[1] - x1[1]
+        dz = x2[2] - x1[2]
+        dist = math.sqrt(dx * dx + dy * dy + dz * dz)
+        if dist > 0.0:
+            nrm[0], nrm[1], nrm[2] = dx / dist, dy / dist, dz / dist
+        else:
+            nrm[0], nrm[1], nrm[2] = 1.0, 0.0, 0.0
+        gap = dist - h1[0] - h2[0]
+        for k in range(3):
+            c[k] = x1[k] + nrm[k] * (h1[0] + 0.5 * gap)
+        return gap
+    W = np.empty((4, 3))
+    WA = np.empty((4, 3))
+    WB = np.empty((4, 3))
+    lam = np.empty(4)
+    pa = np.empty(3)
+    pb = np.empty(3)
+    v = np.empty(3)
+    # a sphere enters GJK as its centre; its radius is a margin subtracted afterwards
+    c1 = k1 == SPHERE
+    c2 = k2 == SPHERE
+    margin = (h1[0] if c1 else 0.0) + (h2[0] if c2 else 0.0)
+    if c1 or c2:
+        st, dist, n = _gjk(k1, h1, x1, R1, c1, k2, h2, x2, R2, c2, scale, max_gap + margin, W, WA, WB, lam, pa, pb, v)
+        if st == _FAR:
+            lv = math.sqrt(_dot(v, v))
+            for k in range(3):
+                nrm[k] = -v[k] / lv
+                c[k] = 0.5 * (x1[k] + x2[k])
+            return dist - margin
+        if st == _SEPARATED and dist > 1e-9 * scale:
+            for k in range(3):
+                nrm[k] = -v[k] / dist
+            if c1:
+                for k in range(3):
+                    pa[k] += h1[0] * nrm[k]
+            if c2:
+                for k in range(3):
+                    pb[k] -= h2[0] * nrm[k]
+            for k in range(3):
+                c[k] = 0.5 * (pa[k] + pb[k])
+            return dist - margin
+        # the centre is inside the other body: fall through to the full shapes
+    st, dist, n = _gjk(k1, h1, x1, R1, False, k2, h2, x2, R2, False, scale, max_gap, W, WA, WB, lam, pa, pb, v)
+    if st == _FAR:
+        lv = math.sqrt(_dot(v, v))
+        for k in range(3):
+            nrm[k] = -v[k] / lv
+            c[k] = 0.5 * (x1[k] + x2[k])
+        return dist
+    gap = 0.0
+    if st == _SEPARATED:
+        for k in range(3):
+            nrm[k] = -v[k] / dist
+        gap = dist
+    else:
+        depth = _epa(k1, h1, x1, R1, k2, h2, x2, R2, scale, W, WA, WB, n, nrm, pa, pb)
+        if depth < 0.0:
+            # degenerate (touching with zero volume): centre line as normal, zero gap
+            dx = x2[0] - x1[0]
+            dy = x2[1] - x1[1]
+            dz = x2[2] - x1[2]
+            ln = math.sqrt(dx * dx + dy * dy + dz * dz)
+            if ln == 0.0:
+                dx, ln = 1.0, 1.0
+            nrm[0], nrm[1], nrm[2] = dx / ln, dy / ln, dz / ln
+            for k in range(3):
+                pa[k] = 0.5 * (x1[k] + x2[k])
+                pb[k] = pa[k]
+            depth = 0.0
+        gap = -depth
+    base = np.empty(3)
+    for k in range(3):
+        base[k] = 0.5 * (pa[k] + pb[k])
+    if c1 or c2:
+        for k in range(3):
+            c[k] = base[k]
+    else:
+        _manifold_point(k1, h1, x1, R1, k2, h2, x2, R2, nrm, base, manifold_tol, c)
+    return gap
+
+
+# ------------------------------------------------------------------------------------------------
+# walls
+
+
+@njit(cache=True)
+def _rim_rho2(ex, ey, ax, ay, bx, by, r, th):
+    # squared distance from the pipe axis of the rim point e + r (cos th a + sin th b), xy parts
+    px = ex + r * (math.cos(th) * ax + math.sin(th) * bx)
+    py = ey + r * (math.cos(th) * ay + math.sin(th) * by)
+    return px * px + py * py
+
+
+@njit(cache=True)
+def pipe_wall_contact(kind, h, x, R, radius, cx, cy, manifold_tol, nrm, c):
+    """Signed gap between a body and the wall of a pipe of ``radius`` about the axis through
+    ``(cx, cy)`` along z: ``radius - (largest distance of a body point from the axis)``.
+    ``nrm`` is the outward radial unit vector (body -> wall) through the contact point ``c``
+    (the mean of the body points within ``manifold_tol`` of the farthest one)."""
+    ox = x[0] - cx
+    oy = x[1] - cy
+    if kind == SPHERE:
+        rho = math.sqrt(ox * ox + oy * oy)
+        ux = 1.0
+        uy = 0.0
+        if rho > 0.0:
+            ux = ox / rho
+            uy = oy / rho
+        nrm[0], nrm[1], nrm[2] = ux, uy, 0.0
+        c[0] = x[0] + h[0] * ux
+        c[1] = x[1] + h[0] * uy
+        c[2] = x[2]
+        return radius - (rho + h[0])
+    cand = np.empty((2 * RIM_SAMPLES + 8, 3))
+    rho2 = np.empty(2 * RIM_SAMPLES + 8)
+    m = 0
+    if kind == CUBE:
+        for sx in (-1.0, 1.0):
+            for sy in (-1.0, 1.0):
+                for sz in (-1.0, 1.0):
+                    for k in range(3):
+                        cand[m, k] = x[k] + R[k, 0] * sx * h[0] + R[k, 1] * sy * h[1] + R[k, 2] * sz * h[2]
+                    px = cand[m, 0] - cx
+                    py = cand[m, 1] - cy
+                    rho2[m] = px * px + py * py
+                    m += 1
+    else:
+        r = h[0]
+        ax, ay = R[0, 0], R[1, 0]
+        bx, by = R[0, 1], R[1, 1]
+        samp = np.empty(RIM_SAMPLES)
+        for sgn in (-1.0, 1.0):
+            ex = ox + sgn * h[2] * R[0, 2]
+            ey = oy + sgn * h[2] * R[1, 2]
+            ez = x[2] + sgn * h[2] * R[2, 2]
+            for s in range(RIM_SAMPLES):
+                samp[s] = _rim_rho2(ex, ey, ax, ay, bx, by, r, 2.0 * math.pi * s / RIM_SAMPLES)
+            sbest = 0
+            for s in range(RIM_SAMPLES):
+                if samp[s] > samp[sbest]:
+                    sbest = s
+            for s in range(RIM_SAMPLES):
+                prv = samp[(s - 1) % RIM_SAMPLES]
+                nxt = samp[(s + 1) % RIM_SAMPLES]
+                # every strict local maximum, and the best sample even on a plateau
+                if s == sbest or (samp[s] >= prv and samp[s] > nxt) or (samp[s] > prv and samp[s] >= nxt):
+                    # Newton on f(th) = |e + r(cos a + sin b)|^2_xy; f is a trigonometric
+                    # polynomial of degree 2, so derivatives are analytic.
+                    th = 2.0 * math.pi * s / RIM_SAMPLES
+                    for _it in range(20):
+                        ct = math.cos(th)
+                        st = math.sin(th)
+                        px = ex + r * (ct * ax + st * bx)
+                        py = ey + r * (ct * ay + st * by)
+                        dpx = r * (-st * ax + ct * bx)
+                        dpy = r * (-st * ay + ct * by)
+                        ddpx = -r * (ct * ax + st * bx)
+                        ddpy = -r * (ct * ay + st * by)
+                        f1 = 2.0 * (px * dpx + py * dpy)
+                        f2 = 2.0 * (dpx * dpx + dpy * dpy + px * ddpx + py * ddpy)
+                        if f2 >= 0.0:
+                            break  # not locally concave: keep the sample
+                        step = -f1 / f2
+                        step = min(0.2, max(-0.2, step))
+                        th += step
+                        if abs(step) < 1e-13:
+                            break
+                    val = _rim_rho2(ex, ey, ax, ay, bx, by, r, th)
+                    if val < samp[s]:
+                        th = 2.0 * math.pi * s / RIM_SAMPLES
+                        val = samp[s]
+                    if m < cand.shape[0]:
+                        ct = math.cos(th)
+                        st = math.sin(th)
+                        cand[m, 0] = cx + ex + r * (ct * ax + st * bx)
+                        cand[m, 1] = cy + ey + r * (ct * ay + st * by)
+                        cand[m, 2] = ez + r * (ct * R[2, 0] + st * R[2, 1])
+                        rho2[m] = val
+                        m += 1
+    best = 0.0
+    for r_ in range(m):
+        best = max(best, rho2[r_])
+    rmax = math.sqrt(best)
+    # contact point: mean of the points within manifold_tol of the farthest (distinct ones)
+    sx_ = 0.0
+    sy_ = 0.0
+    sz_ = 0.0
+    cnt = 0
+    thr = rmax - manifold_tol
+    for r_ in range(m):
+        if math.sqrt(rho2[r_]) >= thr:
+            dup = False
+            for s in range(r_):
+                if math.sqrt(rho2[s]) >= thr:
+                    dd = (cand[s, 0] - cand[r_, 0]) ** 2 + (cand[s, 1] - cand[r_, 1]) ** 2 + (cand[s, 2] - cand[r_, 2]) ** 2
+                    if dd <= 1e-18 * (1.0 + best):
+                        dup = True
+                        break
+            if dup:
+                continue
+            sx_ += cand[r_, 0]
+            sy_ += cand[r_, 1]
+            sz_ += cand[r_, 2]
+            cnt += 1
+    c[0] = sx_ / cnt
+    c[1] = sy_ / cnt
+    c[2] = sz_ / cnt
+    px = c[0] - cx
+    py = c[1] - cy
+    rr = math.sqrt(px * px + py * py)
+    if rr > 0.0:
+        nrm[0], nrm[1], nrm[2] = px / rr, py / rr, 0.0
+    else:
+        nrm[0], nrm[1], nrm[2] = 1.0, 0.0, 0.0
+    return radius - rmax
+
+
+@njit(cache=True)
+def plane_wall_contact(kind, h, x, R, axis, coord, side, manifold_tol, nrm, c):
+    """Signed gap between a body and the planar wall ``x[axis] = coord``; ``side = +1`` for a
+    wall on the high side (the body lies below it), ``-1`` on the low side. ``nrm`` is the unit
+    normal from the body into the wall (``side * e_axis``); ``c`` the centroid of the body's
+    support feature towards the wall."""
+    for k in range(3):
+        nrm[k] = 0.0
+    nrm[axis] = side
+    f = np.empty((DISC_SIDES, 3))
+    m = _feature(kind, h, x, R, nrm, manifold_tol, f)
+    for k in range(3):
+        c[k] = 0.0
+        for r in range(m):
+            c[k] += f[r, k]
+        c[k] /= m
+    tb = np.empty(3)
+    ts = np.empty(3)
+    sp = np.empty(3)
+    _support_lab(kind, h, x, R, False, nrm, sp, tb, ts)
+    return side * (coord - sp[axis])
+
+
+# ------------------------------------------------------------------------------------------------
+# broad phase
+
+
+@njit(cache=True)
+def _cell_setup(x, cs, lo, hi, periodic):
+    n = x.shape[0]
+    nc = np.ones(3, dtype=np.int64)
+    org = np.zeros(3)
+    width = np.zeros(3)
+    for a in range(3):
+        if periodic[a]:
+            L = hi[a] - lo[a]
+            nc[a] = max(1, int(math.floor(L / cs)))
+            org[a] = lo[a]
+            width[a] = L / nc[a]
+        else:
+            mn = 1e300
+            mx = -1e300
+            for i in range(n):
+                mn = min(mn, x[i, a])
+                mx = max(mx, x[i, a])
+            if n == 0:
+                mn, mx = 0.0, 0.0
+            nc[a] = max(1, min(1024, int(math.floor((mx - mn) / cs)) + 1))
+            org[a] = mn
+            width[a] = max(cs, (mx - mn) / nc[a] * (1.0 + 1e-12))
+    return nc, org, width
+
+
+@njit(cache=True)
+def _pair_scan(x, rb, margin, lo, hi, periodic, nc, org, width, cell_of, start, members, fill, pi, pj, ps):
+    n = x.shape[0]
+    L = np.empty(3)
+    for a in range(3):
+        L[a] = hi[a] - lo[a]
+    noff = np.empty(3, dtype=np.int64)
+    offs = np.empty((3, 3), dtype=np.int64)
+    for a in range(3):
+        if periodic[a] and nc[a] == 2:
+            noff[a] = 2
+            offs[a, 0], offs[a, 1] = 0, 1
+        elif periodic[a] and nc[a] == 1:
+            noff[a] = 1
+            offs[a, 0] = 0
+        else:
+            noff[a] = 3
+            offs[a, 0], offs[a, 1], offs[a, 2] = -1, 0, 1
+    cnt = 0
+    ci = np.empty(3, dtype=np.int64)
+    for i in range(n):
+        c = cell_of[i]
+        ci[2] = c % nc[2]
+        ci[1] = (c // nc[2]) % nc[1]
+        ci[0] = c // (nc[1] * nc[2])
+        for o0 in range(noff[0]):
+            a0 = ci[0] + offs[0, o0]
+            if periodic[0]:
+                a0 %= nc[0]
+            elif a0 < 0 or a0 >= nc[0]:
+                continue
+            for o1 in range(noff[1]):
+                a1 = ci[1] + offs[1, o1]
+                if periodic[1]:
+                    a1 %= nc[1]
+                elif a1 < 0 or a1 >= nc[1]:
+                    continue
+                for o2 in range(noff[2]):
+                    a2 = ci[2] + offs[2, o2]
+                    if periodic[2]:
+                        a2 %= nc[2]
+                    elif a2 < 0 or a2 >= nc[2]:
+                        continue
+                    cc = (a0 * nc[1] + a1) * nc[2] + a2
+                    for t in range(start[cc], start[cc + 1]):
+                        j = members[t]
+                        if j <= i:
+                            continue
+                        s0 = 0.0
+                        s1 = 0.0
+                        s2 = 0.0
+                        d0 = x[j, 0] - x[i, 0]
+                        d1 = x[j, 1] - x[i, 1]
+                        d2 = x[j, 2] - x[i, 2]
+                        if periodic[0]:
+                            s0 = -L[0] * math.floor(d0 / L[0] + 0.5)
+                        if periodic[1]:
+                            s1 = -L[1] * math.floor(d1 / L[1] + 0.5)
+                        if periodic[2]:
+                            s2 = -L[2] * math.floor(d2 / L[2] + 0.5)
+                        d0 += s0
+                        d1 += s1
+                        d2 += s2
+                        cut = rb[i] + rb[j] + margin
+                        if d0 * d0 + d1 * d1 + d2 * d2 <= cut * cut:
+                            if fill:
+                                pi[cnt] = i
+                                pj[cnt] = j
+                                ps[cnt, 0], ps[cnt, 1], ps[cnt, 2] = s0, s1, s2
+                            cnt += 1
+    return cnt
+
+
+@njit(cache=True)
+def candidate_pairs(x, rb, margin, lo, hi, periodic):
+    """Pairs (i < j) whose bounding spheres (radii ``rb``) come within ``margin`` of each other,
+    by a cell list; ``periodic[a]`` wraps axis a over ``[lo[a], hi[a])`` and returns the
+    minimum-image shift of body j (``x[j] + shift``). Returns (pi, pj, shift)."""
+    n = x.shape[0]
+    rmax = 0.0
+    for i in range(n):
+        rmax = max(rmax, rb[i])
+    cs = 2.0 * rmax + margin
+    nc, org, width = _cell_setup(x, cs, lo, hi, periodic)
+    ncell = nc[0] * nc[1] * nc[2]
+    cell_of = np.empty(n, dtype=np.int64)
+    for i in range(n):
+        idx = 0
+        for a in range(3):
+            t = (x[i, a] - org[a]) / width[a]
+            ia = int(math.floor(t))
+            if periodic[a]:
+                ia %= nc[a]
+            else:
+                ia = min(nc[a] - 1, max(0, ia))
+            idx = idx * nc[a] + ia
+        cell_of[i] = idx
+    start = np.zeros(ncell + 1, dtype=np.int64)
+    for i in range(n):
+        start[cell_of[i] + 1] += 1
+    for c in range(ncell):
+        start[c + 1] += start[c]
+    members = np.empty(n, dtype=np.int64)
+    pos = start[:-1].copy()
+    for i in range(n):
+        members[pos[cell_of[i]]] = i
+        pos[cell_of[i]] += 1
+    dummy_i = np.empty(0, dtype=np.int64)
+    dummy_s = np.empty((0, 3))
+    cnt = _pair_scan(x, rb, margin, lo, hi, periodic, nc, org, width, cell_of, start, members, False, dummy_i, dummy_i, dummy_s)
+    pi = np.empty(cnt, dtype=np.int64)
+    pj = np.empty(cnt, dtype=np.int64)
+    ps = np.empty((cnt, 3))
+    _pair_scan(x, rb, margin, lo, hi, periodic, nc, org, width, cell_of, start, members, True, pi, pj, ps)
+    return pi, pj, ps
+
+
+@njit(cache=True)
+def bounding_radii(kind, h):
+    """``bounding_radius`` of each body (N,)."""
+    n = kind.shape[0]
+    out = np.empty(n)
+    for i in range(n):
+        out[i] = bounding_radius(kind[i], h[i])
+    return out
+
+
+# ------------------------------------------------------------------------------------------------
+# Python conveniences (tests, set-up; not for the time loop)
+
+
+def _matrix(q) -> np.ndarray:
+    q = np.asarray(q, dtype=np.float64)
+    return quat_to_matrix(q / np.linalg.norm(q))
+
+
+def contact_pair(kind1, h1, x1, q1, kind2, h2, x2, q2, manifold_tol: float = 0.1, max_gap: float = np.inf):
+    """Signed gap, unit normal (1 -> 2) and contact point of two bodies given by quaternions."""
+    nrm = np.empty(3)
+    c = np.empty(3)
+    g = body_contact(
+        int(kind1), np.asarray(h1, np.float64), np.asarray(x1, np.float64), _matrix(q1),
+        int(kind2), np.asarray(h2, np.float64), np.asarray(x2, np.float64), _matrix(q2),
+        float(max_gap), float(manifold_tol), nrm, c,
+    )
+    return float(g), nrm, c
+
+
+def contact_pipe(kind, h, x, q, radius: float, center=(0.0, 0.0), manifold_tol: float = 0.1):
+    """Signed gap to the pipe wall, outward radial normal and contact point of one body."""
+    nrm = np.empty(3)
+    c = np.empty(3)
+    g = pipe_wall_contact(
+        int(kind), np.asarray(h, np.float64), np.asarray(x, np.float64), _matrix(q),
+        float(radius), float(center[0]), float(center[1]), float(manifold_tol), nrm, c,
+    )
+    return float(g), nrm, c
+
+
+def contact_plane(kind, h, x, q, axis: int, coord: float, side: int, manifold_tol: float = 0.1):
+    """Signed gap to the planar wall ``x[axis] = coord`` (``side`` +1: wall above the body)."""
+    nrm = np.empty(3)
+    c = np.empty(3)
+    g = plane_wall_contact(
+        int(kind), np.asarray(h, np.float64), np.asarray(x, np.float64), _matrix(q),
+        int(axis), float(coord), float(side), float(manifold_tol), nrm, c,
+    )
+    return float(g), nrm, c
