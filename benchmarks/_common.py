@@ -228,14 +228,25 @@ def calibrate(contenders: list[Contender], rep_seconds: float, warmup: int = 1, 
 
 
 def measure_interleaved(contenders: list[Contender], reps: int, monitor: LoadMonitor | None = None,
+                        max_rounds: int | None = None, quiet_cores: float = 0.15,
                         progress: Callable[[str], None] | None = None) -> list[dict]:
-    """``reps`` rounds; each round times one repetition of every contender, in an order rotated
-    from round to round. Before each timed repetition one untimed unit brings the contender's
-    data back into the caches (the other contenders evicted it), so every contender starts alike.
-    Returns the load reading of each round."""
-    rounds = []
+    """Rounds of one timed repetition of every contender, in an order rotated from round to round.
+
+    Before each timed repetition one untimed unit brings the contender's data back into the
+    caches (the other contenders evicted it), so every contender starts alike. With a
+    ``monitor``, a round in which other processes (plus hypervisor steal) used more than
+    ``quiet_cores`` is marked disturbed and rounds continue until ``reps`` quiet ones are in or
+    ``max_rounds`` have run. The contenders' ``rates`` then hold the quiet rounds only if there
+    are at least three of them, else all rounds. Returns one load reading per round, with
+    ``quiet`` and ``used`` flags.
+    """
+    rounds: list[dict] = []
     m = len(contenders)
-    for r in range(reps):
+    max_rounds = max(reps, max_rounds or reps)
+    per_round: dict[str, list[float]] = {c.key: [] for c in contenders}
+    n_quiet = 0
+    r = 0
+    while r < max_rounds and n_quiet < reps:
         if monitor:
             monitor.start()
         order = [contenders[(i + r) % m] for i in range(m)]
@@ -244,11 +255,22 @@ def measure_interleaved(contenders: list[Contender], reps: int, monitor: LoadMon
         for c in order:
             _timed(c, 1)
             dt = _timed(c, c.n)
-            c.rates.append(c.work * c.n / dt)
-        if monitor:
-            rounds.append(monitor.read())
+            per_round[c.key].append(c.work * c.n / dt)
+        info = monitor.read() if monitor else {}
+        other = (info.get("foreign_cores") or 0.0) + (info.get("steal_cores") or 0.0)
+        info["quiet"] = info.get("foreign_cores") is None or other <= quiet_cores
+        n_quiet += info["quiet"]
+        rounds.append(info)
+        r += 1
         if progress:
-            progress(f"round {r + 1}/{reps} done")
+            state = "quiet" if info["quiet"] else f"DISTURBED (other jobs used {other:.2f} cores)"
+            progress(f"round {r}: {state}; {n_quiet}/{reps} quiet rounds so far")
+    use_quiet = n_quiet >= min(3, reps)
+    for i, info in enumerate(rounds):
+        info["used"] = bool(info["quiet"] or not use_quiet)
+    for c in contenders:
+        c.rates = [x for x, info in zip(per_round[c.key], rounds) if info["used"]]
+        c.meta["rates_all_rounds"] = per_round[c.key]
     return rounds
 
 

@@ -277,6 +277,10 @@ def main(argv=None) -> int:
     ap.add_argument("--json", metavar="PATH", help="also write all figures to PATH (JSON)")
     ap.add_argument("--reps", type=int, help="timed repetitions per figure (default 5; 3 with --quick)")
     ap.add_argument("--rep-seconds", type=float, help="target length of one repetition (default 0.4 s; 0.05 with --quick)")
+    ap.add_argument("--max-rounds", type=int,
+                    help="rounds to try at most while collecting --reps rounds undisturbed by other jobs (default 3 x reps)")
+    ap.add_argument("--quiet-cores", type=float, default=0.15,
+                    help="a round counts as disturbed when other processes used more than this many cores (default 0.15)")
     ap.add_argument("--threads", default="1,2", help="thread counts, comma separated (default 1,2)")
     ap.add_argument("--no-lbmpy", action="store_true", help="skip the lbmpy comparison")
     args = ap.parse_args(argv)
@@ -389,9 +393,11 @@ def main(argv=None) -> int:
     say(f"warm-up and calibration of {len(cons)} contenders ...")
     calibrate(cons, rep_s, warmup=warmup)
     monitor = LoadMonitor()
-    say(f"measuring: {reps} interleaved rounds of ~{len(cons) * rep_s * 1.3:.0f} s ...")
+    say(f"measuring: interleaved rounds of ~{sum(c.n + 1 for c in cons) * rep_s / max(1, min(c.n for c in cons)):.0f} s "
+        f"until {reps} are undisturbed by other jobs ...")
     t_meas = time.perf_counter()
-    rounds = measure_interleaved(cons, reps, monitor, progress=say)
+    rounds = measure_interleaved(cons, reps, monitor, max_rounds=args.max_rounds or 3 * reps,
+                                 quiet_cores=args.quiet_cores, progress=say)
     meas_s = time.perf_counter() - t_meas
 
     # ---------------- report
@@ -408,15 +414,20 @@ def main(argv=None) -> int:
           f"interleaved in rounds; figures are medians; spread = (max - min) / median")
     foreign = [r["foreign_cores"] for r in rounds if r.get("foreign_cores") is not None]
     steal = [r["steal_cores"] for r in rounds if r.get("steal_cores") is not None]
-    load = {"rounds": rounds}
+    used = [r for r in rounds if r["used"]]
+    load = {"rounds": rounds, "rounds_used": len(used), "quiet_cores_threshold": args.quiet_cores}
     if foreign:
+        uf = [r["foreign_cores"] for r in used]
         load.update(foreign_cores_mean=float(np.mean(foreign)), foreign_cores_max=float(np.max(foreign)),
-                    steal_cores_mean=float(np.mean(steal)), steal_cores_max=float(np.max(steal)))
-        print(f"load from other processes during the measurement: mean {np.mean(foreign):.2f} cores, "
-              f"max {np.max(foreign):.2f} in a round; hypervisor steal mean {np.mean(steal):.2f} cores")
-        if np.max(foreign) + np.max(steal) > 0.25:
-            print("WARNING: other jobs used the CPUs during the run; absolute figures (2-thread ones most) are "
-                  "disturbed. Ratios within the run remain comparable; repeat on a quiet machine for absolutes.")
+                    steal_cores_mean=float(np.mean(steal)), foreign_cores_used_rounds_max=float(np.max(uf)))
+        print(f"load from other processes: {len(rounds)} rounds, {sum(r['quiet'] for r in rounds)} quiet "
+              f"(<= {args.quiet_cores} cores used by others); medians over {len(used)} "
+              f"{'quiet ' if all(r['quiet'] for r in used) else ''}rounds, in which others used at most "
+              f"{np.max(uf):.2f} cores (mean over all rounds {np.mean(foreign):.2f}, steal {np.mean(steal):.2f})")
+        if not all(r["quiet"] for r in used):
+            print("WARNING: fewer than 3 quiet rounds: other jobs used the CPUs during the measurement, so the "
+                  "absolute figures (2-thread ones most) are disturbed. Ratios within the run stay comparable; "
+                  "repeat on a quieter machine (or raise --max-rounds) for absolute figures.")
 
     # bandwidth table
     print()
@@ -460,7 +471,7 @@ def main(argv=None) -> int:
         prec = c.meta["precision"]
         ref = refs.get((prec, c.threads))
         ratio = c.median / ref.median if (ref is not None and c.meta["kind"] == "box") else None
-        share = c.median / roof[c.threads][prec]
+        share = c.median / 1e6 / roof[c.threads][prec]
         rows.append(dict(id=c.key, contender=c.meta["contender"], domain=c.meta["domain"], threads=c.threads,
                          precision=prec, nodes=c.work, mlups_median=c.median / 1e6,
                          mlups_reps=[r / 1e6 for r in c.rates], spread=c.spread, steps_per_rep=c.n,
@@ -478,9 +489,11 @@ def main(argv=None) -> int:
     if lbmpy_note:
         print(lbmpy_note)
     if validation:
-        worst = max(validation.values())
-        print(f"check: lbmpy and lbmpipe agree on a 12x10x8 periodic box after 4 steps "
-              f"(max |f_lbmpy - f_lbmpipe| = {worst:.1e} over {len(validation)} kernel/sync combinations)")
+        for prec in ("float64", "float32"):
+            d = [v for k, v in validation.items() if k.startswith(prec)]
+            if d:
+                print(f"check ({prec}): lbmpy reproduces lbmpipe's BGK on a 12x10x8 periodic box, 4 steps, "
+                      f"max |f_lbmpy - f_lbmpipe| = {max(d):.1e} ({len(d)} kernel/sync combinations)")
 
     # targets
     targets = {}
@@ -488,7 +501,7 @@ def main(argv=None) -> int:
     for t in threads:
         box = by_key.get(f"lbmpipe/box/bgk/float64/t{t}")
         ref = refs.get(("float64", t))
-        share = box.median / roof[t]["float64"]
+        share = box.median / 1e6 / roof[t]["float64"]
         tgt = {"roofline_share": share, "roofline_ok": share >= 0.75}
         line = f"targets, {t} thread{'s' if t > 1 else ''}: box float64 BGK at {100 * share:.0f}% of roofline " \
                f"({'meets' if share >= 0.75 else 'misses'} 75%)"
