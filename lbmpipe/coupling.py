@@ -27,7 +27,7 @@ axis-aligned bounding box, the z-interval of node centres inside the shape, foun
 shape meets each column in one interval. Runs use unwrapped indices around the particle's centre
 (so relative vectors are the minimum image without any rounding) and are wrapped into memory by
 small lookup tables; particle centres are kept inside the periodic box (wrapped after each move,
-the runs shifted with them). A particle must be smaller than half of every periodic length.
+the runs shifted with them). A particle's bounding diameter must be at least two nodes shorter than every periodic length.
 
 Links and the coupling, Eqs. (8)-(12)
 -------------------------------------
@@ -343,6 +343,7 @@ def free_accumulate(f2, owner, ids, run_off, rect, z1, z2, xmap, ymap, zmap, dim
         G = np.zeros(6)
         Z = np.zeros((6, 6))
         S = np.zeros((3, 3))
+        E = np.zeros((3, 3))
         for i in range(1, Q):
             exi = e[i, 0]
             eyi = e[i, 1]
@@ -460,7 +461,6 @@ def free_accumulate(f2, owner, ids, run_off, rect, z1, z2, xmap, ymap, zmap, dim
             S[2, 0] = sxz
             S[1, 2] = syz
             S[2, 1] = syz
-            E = np.zeros((3, 3))
             E[0, 1] = -fez
             E[0, 2] = fey
             E[1, 0] = fez
@@ -633,75 +633,86 @@ def implicit_update(ids, mass, inertia, q, v, wb, g0, zmat, fext, imp, om_out, f
             imp[k, p] = 0.0
 
 
+@njit(cache=True)
+def _accumulate(ids, force, torque, force_sum, torque_sum, n_sum):
+    for m in range(ids.shape[0]):
+        k = ids[m]
+        for p in range(3):
+            force_sum[k, p] += force[k, p]
+            torque_sum[k, p] += torque[k, p]
+        n_sum[k] += 1
+
+
 # ----------------------------------------------------------------------------------------------
 # Fixed particles: links mapped once
 
 
 @njit(cache=True)
-def _count_fixed_links(ids, owner, run_off, rect, z1, z2, xmap, ymap, zmap, dims, az, e):
+def _fixed_links_pass(ids, is_fixed, owner, run_off, rect, z1, z2, xmap, ymap, zmap, dims, az, e, origin, x,
+                      off, lx, ls, li, lr, store):
+    # Links from nodes outside a fixed particle's runs into nodes it owns. Wall nodes and nodes of
+    # other fixed particles never hold fluid; nodes of free particles may later (checked per step).
     nx, ny, nz = dims[0], dims[1], dims[2]
-    out = np.zeros(ids.shape[0], np.int64)
+    counts = np.zeros(ids.shape[0], np.int64)
     for m in range(ids.shape[0]):
         k = ids[m]
-        out[m] = _fixed_links_of(k, owner, run_off, rect, z1, z2, xmap, ymap, zmap, nx, ny, nz, az, e,
-                                 np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0, np.int64),
-                                 np.zeros((0, 3)), np.zeros(3), False, 0)
-    return out
+        a0, b0, na, nb = rect[k, 0], rect[k, 1], rect[k, 2], rect[k, 3]
+        base = run_off[k]
+        cnt = off[m] if store else 0
+        for i in range(1, e.shape[0]):
+            exi, eyi, ezi = e[i, 0], e[i, 1], e[i, 2]
+            for ca in range(na):
+                for cb in range(nb):
+                    c = base + ca * nb + cb
+                    s1, s2 = z1[c], z2[c]
+                    if s1 > s2:
+                        continue
+                    na_, nb_ = ca - exi, cb - eyi
+                    if 0 <= na_ < na and 0 <= nb_ < nb:
+                        cn = base + na_ * nb + nb_
+                        w1, w2 = z1[cn] + ezi, z2[cn] + ezi
+                    else:
+                        w1, w2 = 1, 0
+                    lo1, hi1, lo2, hi2 = _candidates(s1, s2, w1, w2)
+                    a, b = a0 + ca, b0 + cb
+                    sbase = (xmap[a + nx] * ny + ymap[b + ny]) * az
+                    xbase = (xmap[a - exi + nx] * ny + ymap[b - eyi + ny]) * az
+                    for part in range(2):
+                        lo = lo1 if part == 0 else lo2
+                        hi = hi1 if part == 0 else hi2
+                        for z in range(lo, hi + 1):
+                            sn = sbase + zmap[z + nz]
+                            if owner[sn] != k:
+                                continue
+                            xn = xbase + zmap[z - ezi + nz]
+                            ox = owner[xn]
+                            if ox == WALL or (ox >= 0 and is_fixed[ox]):
+                                continue
+                            if store:
+                                lx[cnt] = xn
+                                ls[cnt] = sn
+                                li[cnt] = i
+                                lr[cnt, 0] = origin[0] + a - 0.5 * exi - x[k, 0]
+                                lr[cnt, 1] = origin[1] + b - 0.5 * eyi - x[k, 1]
+                                lr[cnt, 2] = origin[2] + z - 0.5 * ezi - x[k, 2]
+                            cnt += 1
+        counts[m] = cnt - (off[m] if store else 0)
+    return counts
 
 
-@njit(cache=True)
-def _fixed_links_of(k, owner, run_off, rect, z1, z2, xmap, ymap, zmap, nx, ny, nz, az, e, lx, ls, li, lr,
-                    origin_minus_x, store, start):
-    # Links from non-wall nodes outside particle k's runs into nodes that k owns. Nodes held by
-    # free particles at set-up count as fluid: they may be uncovered later (checked per step).
-    a0, b0, na, nb = rect[k, 0], rect[k, 1], rect[k, 2], rect[k, 3]
-    base = run_off[k]
-    cnt = start
-    for i in range(1, e.shape[0]):
-        exi, eyi, ezi = e[i, 0], e[i, 1], e[i, 2]
-        for ca in range(na):
-            for cb in range(nb):
-                c = base + ca * nb + cb
-                s1, s2 = z1[c], z2[c]
-                if s1 > s2:
-                    continue
-                na_, nb_ = ca - exi, cb - eyi
-                if 0 <= na_ < na and 0 <= nb_ < nb:
-                    cn = base + na_ * nb + nb_
-                    w1, w2 = z1[cn] + ezi, z2[cn] + ezi
-                else:
-                    w1, w2 = 1, 0
-                lo1, hi1, lo2, hi2 = _candidates(s1, s2, w1, w2)
-                a, b = a0 + ca, b0 + cb
-                sbase = (xmap[a + nx] * ny + ymap[b + ny]) * az
-                xbase = (xmap[a - exi + nx] * ny + ymap[b - eyi + ny]) * az
-                for part in range(2):
-                    lo = lo1 if part == 0 else lo2
-                    hi = hi1 if part == 0 else hi2
-                    for z in range(lo, hi + 1):
-                        sn = sbase + zmap[z + nz]
-                        if owner[sn] != k:
-                            continue
-                        xn = xbase + zmap[z - ezi + nz]
-                        ox = owner[xn]
-                        if ox == WALL or (ox >= 0 and ox != k and _is_fixed_owner(ox, lr)):
-                            pass
-                        if ox == WALL:
-                            continue
-                        if store:
-                            lx[cnt] = xn
-                            ls[cnt] = sn
-                            li[cnt] = i
-                            lr[cnt, 0] = origin_minus_x[0] + a - 0.5 * exi
-                            lr[cnt, 1] = origin_minus_x[1] + b - 0.5 * eyi
-                            lr[cnt, 2] = origin_minus_x[2] + z - 0.5 * ezi
-                        cnt += 1
-    return cnt - start
-
-
-@njit(cache=True, inline="always")
-def _is_fixed_owner(o, lr):
-    return False
+def map_fixed_links(ids, is_fixed, owner, run_off, rect, z1, z2, xmap, ymap, zmap, dims, az, e, origin, x):
+    """Links of the fixed particles ``ids`` as CSR arrays ``(off, x, s, i, r)`` (flat fluid node,
+    flat particle node, direction, lever arm ``x + e_i/2 - X``)."""
+    args = (ids, is_fixed, owner, run_off, rect, z1, z2, xmap, ymap, zmap, dims, az, e, origin, x)
+    empty = (np.zeros(len(ids) + 1, np.int64), np.zeros(0, np.int64), np.zeros(0, np.int64),
+             np.zeros(0, np.int64), np.zeros((0, 3)))
+    counts = _fixed_links_pass(*args, *empty, False)
+    off = np.zeros(len(ids) + 1, np.int64)
+    off[1:] = np.cumsum(counts)
+    tot = int(off[-1])
+    lx, ls, li, lr = np.zeros(tot, np.int64), np.zeros(tot, np.int64), np.zeros(tot, np.int64), np.zeros((tot, 3))
+    _fixed_links_pass(*args, off, lx, ls, li, lr, True)
+    return off, lx, ls, li, lr
 
 
 @njit(parallel=True, cache=True, fastmath=True)
@@ -1048,11 +1059,12 @@ class ParticleSystem:
         self.gravity = np.asarray(gravity, dtype=np.float64).reshape(3)
         rb = np.array([bounding_radius(bodies.kind[k], bodies.h[k]) for k in range(n)], dtype=np.float64)
         self.rb = rb
-        for d in range(3):
-            if grid.periodic[d] and n and 4.0 * rb.max() + 2.0 >= self.dims[d]:
-                raise ValueError(f"particles (bounding diameter {2 * rb.max():.3g}) must be smaller than half the "
-                                 f"periodic length {self.dims[d]} along axis {'xyz'[d]}")
         span = (2.0 * rb).astype(np.int64) + 2
+        for d in range(3):
+            # a node must not belong to a particle's runs twice (through the periodic image)
+            if grid.periodic[d] and n and span.max() > self.dims[d]:
+                raise ValueError(f"a particle's bounding diameter ({2 * rb.max():.3g} nodes) must be below the "
+                                 f"periodic length along {'xyz'[d]} ({self.dims[d]} nodes) minus 2")
         self.run_off = np.zeros(n + 1, dtype=np.int64)
         self.run_off[1:] = np.cumsum(span * span)
         ncol = int(self.run_off[-1])
@@ -1094,7 +1106,7 @@ class ParticleSystem:
         self.torque = np.zeros((n, 3))
         self.force_sum = np.zeros((n, 3))
         self.torque_sum = np.zeros((n, 3))
-        self.n_sum = 0
+        self.n_sum = np.zeros(n, np.int64)
         self.node_j = np.zeros(n)
         self.node_n = np.zeros(n, np.int64)
         self.last_cover = (0, 0)
@@ -1121,25 +1133,10 @@ class ParticleSystem:
                      self.dims, self.az, self.owner, self.count)
 
     def _map_fixed_links(self):
-        ids = self.fixed_ids
-        nx, ny, nz = self.dims
-        counts = np.zeros(len(ids), np.int64)
-        dummy = (np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros((0, 3)))
-        for m, k in enumerate(ids):  # set-up only, once per fixed particle
-            counts[m] = _fixed_links_of(k, self.owner, self.run_off, self.rect, self.z1, self.z2, self.xmap,
-                                        self.ymap, self.zmap, nx, ny, nz, self.az, self.e, *dummy, np.zeros(3),
-                                        False, 0)
-        self.fix_off = np.zeros(len(ids) + 1, np.int64)
-        self.fix_off[1:] = np.cumsum(counts)
-        tot = int(self.fix_off[-1])
-        self.fix_x = np.zeros(tot, np.int64)
-        self.fix_s = np.zeros(tot, np.int64)
-        self.fix_i = np.zeros(tot, np.int64)
-        self.fix_r = np.zeros((tot, 3))
-        for m, k in enumerate(ids):
-            _fixed_links_of(k, self.owner, self.run_off, self.rect, self.z1, self.z2, self.xmap, self.ymap,
-                            self.zmap, nx, ny, nz, self.az, self.e, self.fix_x, self.fix_s, self.fix_i, self.fix_r,
-                            self.origin - self.bodies.x[k], True, int(self.fix_off[m]))
+        b = self.bodies
+        self.fix_off, self.fix_x, self.fix_s, self.fix_i, self.fix_r = map_fixed_links(
+            self.fixed_ids, b.fixed, self.owner, self.run_off, self.rect, self.z1, self.z2, self.xmap, self.ymap,
+            self.zmap, self.dims, self.az, self.e, self.origin, b.x)
 
     def _update_omega(self):
         from .rigid import omega_lab_arrays
@@ -1151,6 +1148,7 @@ class ParticleSystem:
         if len(self.fixed_ids):
             fixed_fill(f2, self.owner, self.fix_off, self.fix_x, self.fix_s, self.fix_i, self.fix_r, self.e,
                        self.opp, self.force, self.torque, self.fixed_ids)
+            _accumulate(self.fixed_ids, self.force, self.torque, self.force_sum, self.torque_sum, self.n_sum)
 
     def couple_free(self, f2, body_force):
         """Links -> implicit velocity update -> ghost fill (the ``pre`` work of free particles)."""
@@ -1166,19 +1164,17 @@ class ParticleSystem:
                         self.force, self.torque)
         free_fill(f2, self.owner, ids, self.run_off, self.rect, self.z1, self.z2, self.xmap, self.ymap, self.zmap,
                   self.dims, self.az, self.origin, b.x, b.v, self.om, self.e, self.w, self.opp, self.rho0)
-
-    def accumulate_outputs(self):
-        self.force_sum += self.force
-        self.torque_sum += self.torque
-        self.n_sum += 1
+        _accumulate(ids, self.force, self.torque, self.force_sum, self.torque_sum, self.n_sum)
 
     def take_mean_force(self):
-        """Mean hydrodynamic force and torque (lab) since the last call, (N, 3) each."""
-        n = max(self.n_sum, 1)
-        f, t = self.force_sum / n, self.torque_sum / n
+        """Mean hydrodynamic force and torque (lab) on each particle over the steps since the last
+        call, (N, 3) each (the last step's values if no step ran)."""
+        n = self.n_sum[:, None]
+        f = np.where(n > 0, self.force_sum / np.maximum(n, 1), self.force)
+        t = np.where(n > 0, self.torque_sum / np.maximum(n, 1), self.torque)
         self.force_sum[:] = 0.0
         self.torque_sum[:] = 0.0
-        self.n_sum = 0
+        self.n_sum[:] = 0
         return f, t
 
     def node_flux(self, f2):
@@ -1299,9 +1295,7 @@ class ParticleMotion(fx.Effect):
         self.system = system
 
     def __call__(self, sim) -> None:
-        s = self.system
-        s.accumulate_outputs()
-        s.move(sim.f_next.reshape(sim.lattice.q, -1))
+        self.system.move(sim.f_next.reshape(sim.lattice.q, -1))
 
 
 class BouzidiParticleGuard(fx.Effect):
@@ -1332,16 +1326,16 @@ def _bouzidi_guard(f2, owner, fluid, fluid2, solid, i, opp):
 
 
 def particle_effects(system: ParticleSystem, flux_control: bool = False, bouzidi_links=None):
-    """``(pre, post)`` effects of a particle system: exactly those it needs."""
+    """The effects a particle system needs, and nothing else: ``(pre, post_before_control,
+    post_after_control)``. The flux correction must run after the sweep and before the flow-rate
+    controller; the motion changes the owner map, so it comes after the correction."""
     pre: list[fx.Effect] = []
-    post: list[fx.Effect] = []
-    if bouzidi_links is not None and len(bouzidi_links):
+    if bouzidi_links is not None and len(bouzidi_links) and system.n:
         pre.append(BouzidiParticleGuard(system, bouzidi_links))
     if len(system.fixed_ids):
         pre.append(FixedParticles(system))
     if len(system.free_ids):
         pre.append(ParticleCoupling(system))
-    if flux_control:
-        post.append(ParticleFluxCorrection(system))
-    post_motion = ParticleMotion(system)
-    return pre, post, post_motion
+    before = [ParticleFluxCorrection(system)] if flux_control and system.n else []
+    after = [ParticleMotion(system)] if len(system.free_ids) else []
+    return pre, before, after

@@ -426,6 +426,7 @@ def pack(
     max_seconds: float = 60.0,
     tolerance: float = 1e-3,
     rotation_weight: float = 1.0,
+    axial_share: float = 1.0,
 ) -> tuple[np.ndarray, np.ndarray]:
     """``n_particles`` bodies of one shape (``kind``, half-extents ``h``) at uniformly random
     positions and orientations, without overlap (every pair and body-wall gap ``>= -tolerance``),
@@ -459,60 +460,78 @@ def pack(
     # mass 1; principal moments per unit mass of the full-size shape (only ratios matter)
     inertia = principal_inertia(kind, h, 1.0 / volume(kind, h))
     iinv = np.tile(1.0 / inertia, (n, 1))
-    lo = np.array([-radius, -radius, 0.0])
-    hi = np.array([radius, radius, length])
     periodic = np.array([False, False, True])
     push = 0.5 * tolerance
+    a = float(axial_share)
+    if not (0.0 <= a <= 1.0):
+        raise ValueError(f"axial_share must be in [0, 1], got {axial_share}")
 
-    # 1. random sequential addition at a reduced scale
-    s = min(1.0, (RSA_FRACTION / target) ** (1.0 / 3.0))
-    # a body must fit in the pipe at the start scale
-    s = min(s, 0.9 * radius / rb)
+    # compression variable c in (0, 1]: volume fraction target * c^3, reached by scaling the
+    # bodies by s(c) = c^(1-a) and the pipe length by L(c) = length * c^(-3a)
+    def scale(c):
+        return c ** (1.0 - a)
+
+    def plen(c):
+        return length * c ** (-3.0 * a)
+
+    def bounds(c):
+        return np.array([-radius, -radius, 0.0]), np.array([radius, radius, plen(c)])
+
+    # 1. random sequential addition at a low compression
+    c = min(1.0, (RSA_FRACTION / target) ** (1.0 / 3.0))
+    if a < 1.0:
+        # a body must fit in the pipe at the start scale
+        c = min(c, (0.9 * radius / rb) ** (1.0 / (1.0 - a)))
     x = None
     for _attempt in range(8):
-        hs = np.tile(h * s, (n, 1))
+        hs = np.tile(h * scale(c), (n, 1))
         u = rng.random((RSA_ATTEMPTS + 200 * n, 3))
-        x, placed = _rsa(kind, hs, q, radius, length, u, push)
+        x, placed = _rsa(kind, hs, q, radius, plen(c), u, push)
         if placed == n:
             break
-        s *= 0.8
+        c *= 0.8
     else:
-        raise PackingError(label, target, 0.0, n, "random sequential addition failed even at a small scale")
+        raise PackingError(label, target, 0.0, n, "random sequential addition failed even at a low density")
 
     def timed_out():
         return time.perf_counter() - t0 > max_seconds
 
-    # 2. growth with relaxation, and Monte Carlo shaking at the last overlap-free scale
-    s_valid = s
+    # 2. compression with relaxation, and Monte Carlo shaking at the last overlap-free state
+    c_valid = c
     x_valid = x.copy()
     q_valid = q.copy()
     step = INITIAL_STEP
-    dmax = 0.05 * rb * s
+    dmax = 0.05 * rb * scale(c)
     amax = 0.05
     failures = 0
-    while s_valid < 1.0:
+    while c_valid < 1.0:
         if timed_out():
-            raise PackingError(label, target, target * s_valid**3, n, f"time limit of {max_seconds:g} s reached")
-        hs = np.tile(h * s_valid, (n, 1))
+            raise PackingError(label, target, target * c_valid**3, n, f"time limit of {max_seconds:g} s reached")
+        sv = scale(c_valid)
+        hs = np.tile(h * sv, (n, 1))
+        lo, hi = bounds(c_valid)
         sweeps = MC_SWEEPS if failures == 0 else MC_SWEEPS_STUCK
         rnd = rng.random((sweeps, n, 6))
-        skin = max(4.0 * dmax, 0.1 * rb * s_valid)
+        skin = max(4.0 * dmax, 0.1 * rb * sv)
         acc = _mc(kind, hs, x_valid, q_valid, radius, lo, hi, periodic, rnd, dmax, amax, skin, -push)
         ratio = acc / (sweeps * n)
         if DEBUG:
-            print(f"s={s_valid:.4f} phi={target*s_valid**3:.4f} step={step:.2e} acc={ratio:.2f} dmax={dmax:.3g} amax={amax:.3g} t={time.perf_counter()-t0:.1f}")
+            print(f"c={c_valid:.4f} phi={target * c_valid**3:.4f} step={step:.2e} acc={ratio:.2f} "
+                  f"dmax={dmax:.3g} amax={amax:.3g} t={time.perf_counter() - t0:.1f}")
         # keep the acceptance near 1/3: larger moves decorrelate faster until they mostly fail
         fac = min(2.0, max(0.5, ratio / 0.33))
-        dmax = min(0.5 * rb * s_valid, max(1e-6 * rb, dmax * fac))
+        dmax = min(0.5 * rb * sv, max(1e-6 * rb, dmax * fac))
         amax = min(0.5, max(1e-6, amax * fac))
-        s_try = min(1.0, s_valid * (1.0 + step))
+        c_try = min(1.0, c_valid * (1.0 + step))
         x = x_valid.copy()
         q = q_valid.copy()
-        hs = np.tile(h * s_try, (n, 1))
+        x[:, 2] *= plen(c_try) / plen(c_valid)  # affine compression along z
+        hs = np.tile(h * scale(c_try), (n, 1))
+        lo, hi = bounds(c_try)
         worst, _ = _relax(kind, hs, x, q, iinv, radius, lo, hi, periodic, push, 0.5 * tolerance, RELAX_SWEEPS,
                           float(rotation_weight))
         if worst <= 0.5 * tolerance and _max_overlap(kind, hs, x, q, radius, lo, hi, periodic) <= tolerance:
-            s_valid = s_try
+            c_valid = c_try
             x_valid = x
             q_valid = q
             step = min(MAX_STEP, 1.5 * step)
@@ -521,12 +540,13 @@ def pack(
             step *= 0.5
             failures += 1
             if step < MIN_STEP:
-                raise PackingError(label, target, target * s_valid**3, n, "the packing jammed")
+                raise PackingError(label, target, target * c_valid**3, n, "the packing jammed")
 
     x = x_valid
     q = q_valid
     x[:, 2] = np.mod(x[:, 2], length)
     # 3. independent final check
+    lo, hi = bounds(1.0)
     hs = np.tile(h, (n, 1))
     worst = _max_overlap(kind, hs, x, q, radius, lo, hi, periodic)
     if worst > tolerance:  # pragma: no cover - guarded by the acceptance test above
