@@ -227,50 +227,112 @@ def calibrate(contenders: list[Contender], rep_seconds: float, warmup: int = 1, 
         c.n = max(min_units, int(round(rep_seconds / max(dt, 1e-9))))
 
 
+def _other_cores(info: dict) -> float | None:
+    fc = info.get("foreign_cores")
+    return None if fc is None else fc + (info.get("steal_cores") or 0.0)
+
+
+def wait_until_quiet(monitor: LoadMonitor, allowed_cores: float, max_wait: float, window: float = 0.25) -> float | None:
+    """Sleep in short windows until other processes use at most ``allowed_cores`` (or ``max_wait``
+    seconds pass); returns the last reading. Cheaper than timing a repetition that would be
+    thrown away."""
+    t_end = time.perf_counter() + max_wait
+    other = None
+    while time.perf_counter() < t_end:
+        monitor.start()
+        time.sleep(window)
+        other = _other_cores(monitor.read())
+        if other is None or other <= allowed_cores:
+            break
+    return other
+
+
+QUIET, SHARED, DISTURBED = "quiet", "shared", "disturbed"
+
+
 def measure_interleaved(contenders: list[Contender], reps: int, monitor: LoadMonitor | None = None,
-                        max_rounds: int | None = None, quiet_cores: float = 0.15,
-                        progress: Callable[[str], None] | None = None) -> list[dict]:
-    """Rounds of one timed repetition of every contender, in an order rotated from round to round.
+                        max_rounds: int | None = None, quiet_cores: float = 0.15, cores: int | None = None,
+                        time_limit: float | None = None, progress: Callable[[str], None] | None = None) -> list[dict]:
+    """Rounds of one timed repetition of each contender, in an order rotated from round to round.
 
     Before each timed repetition one untimed unit brings the contender's data back into the
-    caches (the other contenders evicted it), so every contender starts alike. With a
-    ``monitor``, a round in which other processes (plus hypervisor steal) used more than
-    ``quiet_cores`` is marked disturbed and rounds continue until ``reps`` quiet ones are in or
-    ``max_rounds`` have run. The contenders' ``rates`` then hold the quiet rounds only if there
-    are at least three of them, else all rounds. Returns one load reading per round, with
-    ``quiet`` and ``used`` flags.
+    caches (the other contenders evicted it), so every contender starts alike.
+
+    With a ``monitor`` each timed repetition is classified by the CPU that other processes used
+    meanwhile: ``quiet`` (at most ``quiet_cores``), ``shared`` (more, but no more than the cores
+    this contender leaves idle: a 1-thread run on 2 cores kept its core, only caches and memory
+    were shared) or ``disturbed`` (others took CPU time from our threads; the figure is
+    meaningless). A contender takes part in further rounds until it has ``reps`` usable (quiet or
+    shared) repetitions, or ``max_rounds`` rounds or ``time_limit`` seconds have passed. When the
+    last reading says the machine is busy, a contender that needs the cores waits (briefly) for
+    them instead of timing a repetition that would be thrown away.
+
+    A contender's ``rates`` are then its quiet repetitions if there are at least three, else its
+    usable ones if at least three, else all; ``meta["status"]`` says which (quiet / shared /
+    disturbed). Returns one summary per round.
     """
-    rounds: list[dict] = []
-    m = len(contenders)
     max_rounds = max(reps, max_rounds or reps)
-    per_round: dict[str, list[float]] = {c.key: [] for c in contenders}
-    n_quiet = 0
+    cores = cores or (len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1)
+    hz = os.sysconf("SC_CLK_TCK")
+    samples: dict[str, list[tuple[float, float | None, str]]] = {c.key: [] for c in contenders}
+    rounds: list[dict] = []
+    t0 = time.perf_counter()
+    last_other = 0.0
+
+    def usable(c):
+        return sum(lv != DISTURBED for _, _, lv in samples[c.key])
+
     r = 0
-    while r < max_rounds and n_quiet < reps:
-        if monitor:
-            monitor.start()
-        order = [contenders[(i + r) % m] for i in range(m)]
+    while r < max_rounds and (time_limit is None or time.perf_counter() - t0 < time_limit):
+        need = [c for c in contenders if usable(c) < reps]
+        if not need:
+            break
+        m = len(need)
+        order = [need[(i + r) % m] for i in range(m)]
         if r % 2:  # alternate direction too, so no contender always follows the same neighbour
             order.reverse()
+        count = {QUIET: 0, SHARED: 0, DISTURBED: 0}
+        waited = 0.0
         for c in order:
+            allowed = max(0, cores - c.threads) + quiet_cores
+            if monitor and last_other is not None and last_other > allowed:
+                tw = time.perf_counter()
+                last_other = wait_until_quiet(monitor, allowed, max_wait=10.0)
+                waited += time.perf_counter() - tw
             _timed(c, 1)
+            if monitor:
+                monitor.start()
             dt = _timed(c, c.n)
-            per_round[c.key].append(c.work * c.n / dt)
-        info = monitor.read() if monitor else {}
-        other = (info.get("foreign_cores") or 0.0) + (info.get("steal_cores") or 0.0)
-        info["quiet"] = info.get("foreign_cores") is None or other <= quiet_cores
-        n_quiet += info["quiet"]
-        rounds.append(info)
+            other = _other_cores(monitor.read()) if monitor else None
+            slack = 2.0 / hz / dt  # /proc/stat counts whole clock ticks: short repetitions are coarse
+            if other is None or other <= quiet_cores + slack:
+                level = QUIET
+            elif other <= allowed + slack:
+                level = SHARED
+            else:
+                level = DISTURBED
+            count[level] += 1
+            last_other = other
+            samples[c.key].append((c.work * c.n / dt, other, level))
         r += 1
+        rounds.append({"timed": m, **count, "waited_s": waited})
         if progress:
-            state = "quiet" if info["quiet"] else f"DISTURBED (other jobs used {other:.2f} cores)"
-            progress(f"round {r}: {state}; {n_quiet}/{reps} quiet rounds so far")
-    use_quiet = n_quiet >= min(3, reps)
-    for i, info in enumerate(rounds):
-        info["used"] = bool(info["quiet"] or not use_quiet)
+            left = sum(usable(c) < reps for c in contenders)
+            progress(f"round {r}: {m} timed ({count[QUIET]} quiet, {count[SHARED]} shared, "
+                     f"{count[DISTURBED]} disturbed; waited {waited:.0f} s for idle cores); "
+                     f"{left} contenders still short of {reps} usable repetitions")
     for c in contenders:
-        c.rates = [x for x, info in zip(per_round[c.key], rounds) if info["used"]]
-        c.meta["rates_all_rounds"] = per_round[c.key]
+        s = samples[c.key]
+        quiet = [x for x, _, lv in s if lv == QUIET]
+        ok = [x for x, _, lv in s if lv != DISTURBED]
+        if len(quiet) >= min(3, reps):
+            c.rates, c.meta["status"] = quiet, QUIET
+        elif len(ok) >= min(3, reps):
+            c.rates, c.meta["status"] = ok, SHARED
+        else:
+            c.rates, c.meta["status"] = [x for x, _, _ in s], DISTURBED
+        c.meta["reps_total"] = len(s)
+        c.meta["samples"] = [{"rate": x, "other_cores": o, "level": lv} for x, o, lv in s]
     return rounds
 
 

@@ -48,6 +48,7 @@ LATTICE = "D3Q15"
 OMEGA = 1.0 / 0.8  # tau = 0.8, the value the brief fixes for the comparison
 TRT_MAGIC = 3.0 / 16.0
 ITEMSIZE = {"float64": 8, "float32": 4}
+MARK = {"quiet": "", "shared": "~", "disturbed": "*"}
 
 
 def bytes_per_node(q: int, precision: str) -> int:
@@ -278,9 +279,11 @@ def main(argv=None) -> int:
     ap.add_argument("--reps", type=int, help="timed repetitions per figure (default 5; 3 with --quick)")
     ap.add_argument("--rep-seconds", type=float, help="target length of one repetition (default 0.4 s; 0.05 with --quick)")
     ap.add_argument("--max-rounds", type=int,
-                    help="rounds to try at most while collecting --reps rounds undisturbed by other jobs (default 3 x reps)")
+                    help="rounds at most while collecting --reps usable repetitions of each contender (default 3 x reps)")
     ap.add_argument("--quiet-cores", type=float, default=0.15,
-                    help="a round counts as disturbed when other processes used more than this many cores (default 0.15)")
+                    help="a repetition counts as disturbed when other processes used more than this many cores (default 0.15)")
+    ap.add_argument("--max-minutes", type=float, default=20.0,
+                    help="stop adding rounds after this many minutes of measurement (default 20)")
     ap.add_argument("--threads", default="1,2", help="thread counts, comma separated (default 1,2)")
     ap.add_argument("--no-lbmpy", action="store_true", help="skip the lbmpy comparison")
     args = ap.parse_args(argv)
@@ -324,12 +327,10 @@ def main(argv=None) -> int:
     # copy bandwidth: one array pair the size of the box's f/f_next, one pair well beyond the LLC
     llc = last_level_cache_bytes() or 64 * 2**20
     big_bytes = max(2 * llc, 256 * 2**20)
-    copy_arrays = {}
     for size_key, nbytes in (("ws", f_bytes), ("big", big_bytes)):
         n = int(nbytes // 8)
         a = np.full(n, 1.0)
         b = np.zeros(n)
-        copy_arrays[size_key] = (a, b)
         for t in threads:
             for kind in ("plain", "memcpy"):
                 if kind == "plain":
@@ -393,11 +394,14 @@ def main(argv=None) -> int:
     say(f"warm-up and calibration of {len(cons)} contenders ...")
     calibrate(cons, rep_s, warmup=warmup)
     monitor = LoadMonitor()
-    say(f"measuring: interleaved rounds of ~{sum(c.n + 1 for c in cons) * rep_s / max(1, min(c.n for c in cons)):.0f} s "
-        f"until {reps} are undisturbed by other jobs ...")
+    est = sum(rep_s * (c.n + 1) / c.n for c in cons)
+    say(f"measuring: interleaved rounds of ~{est:.0f} s (more if disturbed) until each contender has {reps} "
+        f"usable repetitions (not disturbed by other jobs) ...")
+    whole = LoadMonitor()
     t_meas = time.perf_counter()
     rounds = measure_interleaved(cons, reps, monitor, max_rounds=args.max_rounds or 3 * reps,
-                                 quiet_cores=args.quiet_cores, progress=say)
+                                 quiet_cores=args.quiet_cores, time_limit=60.0 * args.max_minutes, progress=say)
+    whole_load = whole.read()
     meas_s = time.perf_counter() - t_meas
 
     # ---------------- report
@@ -410,24 +414,27 @@ def main(argv=None) -> int:
     print(f"numba {machine['numba']} ({machine['numba_threading_layer']} threading layer) compiles for LLVM cpu "
           f"'{machine['llvm_cpu_name']}'" + (f"; lbmpy {lbmpy_info['lbmpy']}, pystencils {lbmpy_info['pystencils']}"
                                              if lbmpy_info else ""))
-    print(f"run: {'QUICK smoke run, ' if quick else ''}{reps} timed repetitions per figure after warm-up, "
-          f"interleaved in rounds; figures are medians; spread = (max - min) / median")
-    foreign = [r["foreign_cores"] for r in rounds if r.get("foreign_cores") is not None]
-    steal = [r["steal_cores"] for r in rounds if r.get("steal_cores") is not None]
-    used = [r for r in rounds if r["used"]]
-    load = {"rounds": rounds, "rounds_used": len(used), "quiet_cores_threshold": args.quiet_cores}
-    if foreign:
-        uf = [r["foreign_cores"] for r in used]
-        load.update(foreign_cores_mean=float(np.mean(foreign)), foreign_cores_max=float(np.max(foreign)),
-                    steal_cores_mean=float(np.mean(steal)), foreign_cores_used_rounds_max=float(np.max(uf)))
-        print(f"load from other processes: {len(rounds)} rounds, {sum(r['quiet'] for r in rounds)} quiet "
-              f"(<= {args.quiet_cores} cores used by others); medians over {len(used)} "
-              f"{'quiet ' if all(r['quiet'] for r in used) else ''}rounds, in which others used at most "
-              f"{np.max(uf):.2f} cores (mean over all rounds {np.mean(foreign):.2f}, steal {np.mean(steal):.2f})")
-        if not all(r["quiet"] for r in used):
-            print("WARNING: fewer than 3 quiet rounds: other jobs used the CPUs during the measurement, so the "
-                  "absolute figures (2-thread ones most) are disturbed. Ratios within the run stay comparable; "
-                  "repeat on a quieter machine (or raise --max-rounds) for absolute figures.")
+    print(f"run: {'QUICK smoke run, ' if quick else ''}after warm-up, up to {reps} usable timed repetitions per figure, "
+          f"interleaved in rounds; figure = median of its quiet repetitions (>= 3) [~: of quiet + shared, "
+          f"*: of all]; spread = (max - min) / median; reps = used/timed")
+    n_timed = sum(c.meta["reps_total"] for c in cons)
+    n_dist = sum(1 for c in cons for x in c.meta["samples"] if x["level"] == "disturbed")
+    status = {c.key: c.meta["status"] for c in cons}
+    load = {"quiet_cores_threshold": args.quiet_cores, "rounds": rounds, "repetitions_timed": n_timed,
+            "repetitions_disturbed": n_dist, "status": status, "whole_measurement": whole_load}
+    if whole_load.get("foreign_cores") is not None:
+        print(f"load from other processes during the measurement: {whole_load['foreign_cores']:.2f} cores on average "
+              f"(steal {whole_load['steal_cores']:.2f}); {n_dist} of {n_timed} timed repetitions were disturbed "
+              f"(others took CPU time from our threads) and are left out")
+    n_shared = sum(v == "shared" for v in status.values())
+    n_bad = sum(v == "disturbed" for v in status.values())
+    if n_shared:
+        print(f"note: {n_shared} figures (marked ~) come from repetitions during which other jobs ran on the core(s) "
+              "the contender left idle: they had their cores but shared caches and memory bandwidth")
+    if n_bad:
+        print(f"WARNING: {n_bad} figures (marked *) got fewer than 3 undisturbed repetitions: other jobs took CPU "
+              "time from them, so they are too low (2-thread ones most). Repeat on a quieter machine, or raise "
+              "--max-rounds / --max-minutes.")
 
     # bandwidth table
     print()
@@ -442,11 +449,12 @@ def main(argv=None) -> int:
                 size_txt = f"2 x {fmt_bytes(nb)}" + (" (= box f, f_next)" if size_key == "ws" else
                                                      f" (> LLC {fmt_bytes(llc)})")
                 kind_txt = "plain loads/stores" if kind == "plain" else "memcpy (numba lowers b[i]=a[i] to it)"
-                bw_rows.append([kind_txt, size_txt, t, f"{c.median / 1e9:.1f}", f"{100 * c.spread:.0f}%"])
+                bw_rows.append([kind_txt, size_txt, t, f"{c.median / 1e9:.1f}" + MARK[c.meta["status"]],
+                                f"{100 * c.spread:.0f}%", f"{len(c.rates)}/{c.meta['reps_total']}"])
                 bandwidth.append(dict(id=c.key, kind=kind, size=size_key, array_bytes=nb, threads=t,
                                       gb_s_median=c.median / 1e9, gb_s_reps=[r / 1e9 for r in c.rates],
-                                      spread=c.spread))
-    print_table(["copy", "arrays", "threads", "GB/s", "spread"], bw_rows, ["<", "<", ">", ">", ">"])
+                                      spread=c.spread, status=c.meta["status"], samples=c.meta["samples"]))
+    print_table(["copy", "arrays", "threads", "GB/s", "spread", "reps"], bw_rows, ["<", "<", ">", ">", ">", ">"])
     roof = {}
     for t in threads:
         bw = by_key[f"copy/plain/ws/t{t}"].median
@@ -475,14 +483,17 @@ def main(argv=None) -> int:
         rows.append(dict(id=c.key, contender=c.meta["contender"], domain=c.meta["domain"], threads=c.threads,
                          precision=prec, nodes=c.work, mlups_median=c.median / 1e6,
                          mlups_reps=[r / 1e6 for r in c.rates], spread=c.spread, steps_per_rep=c.n,
+                         status=c.meta["status"], samples=c.meta["samples"],
                          ratio_to_lbmpy=ratio, roofline_share=share,
                          lbmpy_reference=ref.key if ref is not None else None))
-        table.append([c.meta["contender"], c.meta["domain"], c.threads, prec, f"{c.median / 1e6:.1f}",
-                      f"{100 * c.spread:.0f}%", "-" if ratio is None else f"{ratio:.2f}", f"{100 * share:.0f}%"])
+        table.append([c.meta["contender"], c.meta["domain"], c.threads, prec,
+                      f"{c.median / 1e6:.1f}" + MARK[c.meta["status"]], f"{100 * c.spread:.0f}%",
+                      f"{len(c.rates)}/{c.meta['reps_total']}", "-" if ratio is None else f"{ratio:.2f}",
+                      f"{100 * share:.0f}%"])
     print()
     print("fluid-only step, MLUPS = million (fluid) node updates per second, median:")
-    print_table(["contender", "domain", "threads", "precision", "MLUPS", "spread", "ratio to lbmpy", "roofline"],
-                table, ["<", "<", ">", "<", ">", ">", ">", ">"])
+    print_table(["contender", "domain", "threads", "precision", "MLUPS", "spread", "reps", "ratio to lbmpy",
+                 "roofline"], table, ["<", "<", ">", "<", ">", ">", ">", ">", ">"])
     if refs:
         print("ratio to lbmpy: against 'lbmpy BGK (..., ghost exchange)' at the same threads and precision "
               "(box rows only; for TRT that is the cost relative to lbmpy's BGK)")
@@ -515,11 +526,12 @@ def main(argv=None) -> int:
     print(f"(measurement {meas_s:.0f} s, total {total_s:.0f} s)")
 
     if args.json:
-        cost = {}
+        cost, cost_status = {}, {}
         for c in fluid:
             if c.meta["group"] == "lbmpipe":
                 k = f"{c.meta['kind']}_{c.meta['collision']}_{c.meta['precision']}"
                 cost.setdefault(k, {})[str(c.threads)] = c.median / 1e6
+                cost_status.setdefault(k, {})[str(c.threads)] = c.meta["status"]
         doc = {
             "schema": "lbmpipe.benchmarks.fluid/1",
             "created": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
@@ -539,7 +551,7 @@ def main(argv=None) -> int:
             "load": load,
             # What the pipeline's cost model reads: measured MLUPS of the whole lbmpipe step per
             # domain kind / collision / precision, keyed by thread count.
-            "cost_model": {"fluid_mlups": cost},
+            "cost_model": {"fluid_mlups": cost, "status": cost_status},
             "seconds": {"measurement": meas_s, "total": total_s},
         }
         path = Path(args.json)

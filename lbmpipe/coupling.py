@@ -8,132 +8,159 @@ Nodes and owners
 ----------------
 Every lattice node is exactly one of: static wall (``owner = -2``; the grid's walls and the z
 padding), fluid (``owner = -1``) or particle ``k`` (``owner = k >= 0``). A node belongs to a
-particle when its centre lies in the closed shape (``shapes.inside_body``). The rules for nodes
-that two things claim:
+particle when its centre lies in the closed shape. Rules for nodes that two things claim:
 
-* wall beats particle: a particle that reaches into the pipe wall simply has no nodes there, so a
-  link crossing both a particle and the wall is a wall link (``boundaries.py``) from the fluid side
-  and does not exist from the particle side (particle-wall pairs of nodes exchange nothing);
-* a fixed particle keeps all its nodes; a node keeps its owner while the owner still covers it;
-  a node covered by several free particles (only where they overlap, which the collision model
-  prevents) goes to the first one found, deterministically.
+* wall beats particle: a particle reaching into the pipe wall has no nodes there. A link that
+  crosses both a particle and the wall is therefore a wall link seen from the fluid node
+  (``boundaries.py`` fills it); particle and wall nodes exchange nothing;
+* a fixed particle keeps its nodes; a node keeps its owner while the owner still covers it; a node
+  covered by several free particles (only where they overlap, which the collision model prevents)
+  goes to the first one found, deterministically.
 
-A per-node coverage count (how many particle shapes contain the node) makes these updates local:
-only nodes whose count changes are looked at.
+Particle nodes as column runs. Over the (x, y) columns of a particle's axis-aligned bounding box,
+the z-interval of node centres inside the shape is found analytically in the body frame (ray-slab
+for a cube, ray-cylinder, ray-sphere); a convex shape meets a column in one interval. Runs use
+unwrapped indices around the particle's centre, so relative vectors are minimum images without
+rounding; lookup tables wrap them into memory. Centres are kept in the periodic box (wrapped
+after each move, runs and lever arms shifted by whole periods). A particle's bounding diameter
+must be at least two nodes shorter than every periodic length. A per-node coverage count (how many
+particle shapes contain the node) makes a move local: only nodes whose count changes are visited
+(the old and new runs of a column differ in a few nodes at the ends).
 
-Each particle's nodes are stored as column runs: over the (x, y) columns of the particle's
-axis-aligned bounding box, the z-interval of node centres inside the shape, found analytically
-(ray-box slabs for a cube, ray-cylinder for a cylinder, ray-sphere) in the body frame. A convex
-shape meets each column in one interval. Runs use unwrapped indices around the particle's centre
-(so relative vectors are the minimum image without any rounding) and are wrapped into memory by
-small lookup tables; particle centres are kept inside the periodic box (wrapped after each move,
-the runs shifted with them). A particle's bounding diameter must be at least two nodes shorter than every periodic length.
+Links, kept up to date
+----------------------
+A boundary link joins a fluid node ``x`` to a particle node ``s = x + e_i``; the set of links is a
+function of the owner map alone, ``{(x, s, i): owner[s] >= 0, owner[x] = -1}``. Each particle keeps
+its links in one list per direction (fluid node, particle node, link midpoint ``x + e_i/2`` in the
+particle's unwrapped frame). Owners change only in ``_set_owner``, which appends the links an owner
+change creates (a node joining a particle: links from its fluid neighbours; a node becoming fluid:
+links into its particle neighbours). Links an owner change ends are deleted lazily: each step's
+first pass over a list checks ``owner[s] == k`` and ``owner[x] == -1`` and swap-removes the dead
+entries. So the live entries always equal the definition and nothing searches for links; a move
+costs about a thousand owner changes per step for the paper's 115 cubes. Fixed and free particles
+share the lists.
 
-Links and the coupling, Eqs. (8)-(12)
--------------------------------------
-A boundary link joins a fluid node ``x`` to a node ``s = x + e_i`` of particle ``k``. Links are
-found from the runs: for direction ``i`` and a column of the particle, the candidates are the run
-nodes whose ``x`` is not in the particle's run of the neighbouring column (at most two
-sub-intervals), each kept if ``owner[s] == k`` and ``owner[x] == -1``. So there is no Python
-loop and no per-node search; each particle is one iteration of a ``prange`` loop.
-
-Per link (as for walls, ``boundaries.py``: the pull of direction ``opp(i)`` at ``x`` reads the
-slot ``(opp(i), s)`` of ``f``), Ladd's rule Eq. (8) with ``B_i = 3 rho0 w_i``:
+Coupling, Eqs. (8)-(12)
+-----------------------
+As for walls (``boundaries.py``), the pull of direction ``opp(i)`` at ``x`` reads slot
+``(opp(i), s)`` of ``f``; Ladd's rule Eq. (8) with ``B_i = 3 rho0 w_i`` writes there
 
     f[opp(i), s] = f*_i(x) - 6 w_i rho0 (e_i . u_b),   u_b = U + Omega x r,  r = x + e_i/2 - X,
 
-the force on the particle Eq. (9), ``F = 2 e_i [f*_i(x) - 3 w_i rho0 (e_i . u_b)]``, its torque
-Eq. (10) ``r x F``, summed over the links, Eqs. (11)-(12). ``X`` is the centre of mass; relative
-vectors are minimum images on periodic axes.
+and the link force Eq. (9) is ``F = 2 e_i [f*_i(x) - 3 w_i rho0 (e_i . u_b)]``, its torque
+Eq. (10) ``r x F``, summed over the links, Eqs. (11)-(12).
+
+Reference pressure (contacts). The force sums use ``f*_i(x) - w_i rho0`` in place of ``f*_i(x)``.
+The constant ``2 e_i w_i rho0`` (the uniform pressure ``rho0 c_s^2``) sums to zero force and torque
+over a closed set of links (a lattice line through a convex particle enters it once and leaves it
+once), so nothing changes for a particle surrounded by fluid. Where links are missing because the
+neighbour node is another particle or the wall, Eq. (9) taken literally leaves the uniform pressure
+acting on the exposed surface only: two 8-node cubes face to face attract with ``64/3`` lattice
+force units and accelerate by 0.04 per step. Without the reference part the missing links carry
+the reference pressure, balanced by the contact (or the wall). Between two particles the removed
+parts are equal and opposite (both see the same missing link), so fluid + particles still conserve
+momentum exactly; against a wall the wall takes it, as it takes any wall force. The ghost fill
+Eq. (8) itself is unchanged.
 
 Implicit velocity update (stability at density ratio 1)
 -------------------------------------------------------
 The link force is linear in the particle's own velocity. Summed over the links,
 
-    (F, T) = (F0, T0) - Z (U, Omega),      F0 = sum 2 e_i f*_i(x),   T0 = sum r x 2 e_i f*_i(x),
+    (F, T) = (F0, T0) - Z (U, Omega),   F0 = sum 2 e_i (f*_i(x) - w_i rho0),  T0 = sum r x (same),
     Z = sum_links 6 w_i rho0 [e_i; r x e_i] [e_i; r x e_i]^T     (6 x 6, symmetric, >= 0),
 
-and an explicit update ``M dU = F`` is unstable once ``Z`` exceeds the particle's mass (light or
-small particles; neutrally buoyant particles without interior fluid are at the limit). The
-velocities are therefore advanced implicitly in the self-friction (Lowe, Frenkel & Masters 1995;
-Nguyen & Ladd 2002):
+and an explicit update ``M dU = F`` is unstable once ``Z`` is comparable to the particle's mass
+(light or small particles; neutrally buoyant particles without interior fluid). Velocities are
+therefore advanced implicitly in this self-friction (Lowe, Frenkel & Masters 1995; Nguyen & Ladd
+2002):
 
     (M + Z dt) V' = M V + (F0 + F_ext + P, T0 + L_P) dt,     V = (U, Omega_lab),
 
 with ``M = diag(m, m, m, I_lab)``, ``I_lab = A diag(I) A^T``, ``F_ext`` the external force and
-``(P, L_P)`` the impulse of the nodes covered and uncovered in the previous move (below). The
-ghost fill then uses the *new* velocity ``V'``, so the force the fluid feels is exactly minus
-the force the particle receives, ``(F0, T0) - Z V'``: fluid + particles conserve momentum to
-round-off. Sums are taken per link direction over each column's run in closed form (count, sum of
-z, sum of z^2, sum of f and of f z), so ``Z`` costs a few operations per link.
+``(P, L_P)`` the impulse of the nodes covered and uncovered by the previous move (below). The ghost
+fill then uses the *new* velocity ``V'``, so the momentum the fluid loses through the links is
+exactly what the particle gains, ``(F0, T0) - Z V'`` (plus the reference-pressure part, which
+cancels between touching particles): fluid + particles conserve momentum to round-off. ``Z`` is
+summed per direction from the link count, the sum of lever arms and the sum of their outer
+products.
 
-Time step (``dt = 1``): ``pre``: links at ``X(t)`` -> ``F0, T0, Z`` -> ``V(t+1)`` -> ghost fill;
-fluid sweep; ``post``: free rigid-body motion ``rigid.drift_arrays`` over one step with ``V(t+1)``
-(``x += v``, the torque-free rotation of Eqs. (13)-(15) that carries the gyroscopic term and keeps
-``|q| = 1``), remap. The kick is the implicit angular-momentum update ``L' = L + T dt`` in the lab
-frame at the current orientation, then the drift: first order in time, like the link coupling
-itself.
+Time step (``dt = 1``): ``pre``: ``F0, T0, Z`` from ``f*(t)`` on the links at ``X(t)`` -> implicit
+update to ``V(t+1)`` -> ghost fill with ``V(t+1)``; fluid sweep; ``post``: the torque-free motion
+``rigid.drift_arrays`` over one step (``x += v``, the exact free rotation of Eqs. (13)-(15) that
+carries the gyroscopic term and keeps ``|q| = 1``), then the remap. The kick is the implicit
+angular-momentum update ``L' = L + T dt`` in the lab frame at the current orientation (Eq. (13)'s
+torque term), the drift the rest: first order in time, like the link coupling itself.
 
 No interior fluid
 -----------------
-Particle nodes carry no fluid (Aidun, Lu & Ding 1998): their populations are swept by the fluid
-kernel like any node but are never read by the fluid, because each slot a fluid node pulls from a
-particle node is overwritten by the ghost fill first. They are excluded from every observable.
+Particle nodes carry no fluid (Aidun, Lu & Ding 1998). The fluid kernel sweeps them like any node,
+but the fluid never reads them: every slot a fluid node pulls from a particle node is overwritten
+by the ghost fill first. Observables exclude them.
 
 Covering and uncovering (momentum accounting)
 ---------------------------------------------
-After the move, for each node whose coverage changed:
+After a move, for each node whose owner changed:
 
-* a fluid node now covered by particle ``k`` is removed from the fluid; its momentum
-  ``j = sum_i f_i e_i`` (post-collision, the fluid's) is given to ``k``: ``P_k += j``,
-  ``L_P += r x j``;
-* a node of particle ``k`` no longer covered becomes fluid, filled with the equilibrium Eq. (3) at
-  the local surface velocity ``u_b = U + Omega x r`` and the mean density of its fluid neighbours
-  that were fluid before the move (``rho0`` if there are none); the particle pays the momentum:
-  ``P_k -= rho u_b``, ``L_P -= r x rho u_b``;
+* a fluid node now covered by particle ``k`` leaves the fluid; its momentum ``j = sum_i f_i e_i``
+  (post-collision) goes to ``k``: ``P_k += j``, ``L_P += r x j``;
+* a node of particle ``k`` that becomes fluid is filled with the equilibrium Eq. (3) at the local
+  surface velocity ``u_b = U + Omega x r`` and the mean density of its neighbours that were fluid
+  before the move: the two along z if either is (their populations share the node's cache lines),
+  else those along x and y, else ``rho0``; the particle pays: ``P_k -= rho u_b``,
+  ``L_P -= r x rho u_b``;
 * a node passed from one particle to another holds no fluid: nothing is exchanged.
 
 ``(P, L_P)`` enters the next implicit update, so fluid + particles conserve total momentum exactly
-(``ParticleSystem.total_momentum``). Mass is not conserved exactly by a moving particle (covered
-nodes take their mass with them and uncovered ones get the neighbours' density), a known property
-of Ladd's scheme; the change averages out as a particle moves on.
+(``ParticleSystem.total_momentum`` counts the impulse not yet applied). Mass is not conserved
+exactly by a moving particle (a covered node takes its mass along, an uncovered one gets its
+neighbours' density), a known property of Ladd's scheme; the change averages out over a move.
 
 External forces on particles
 ----------------------------
 * The flow's driving body force stands for a pressure gradient, which pushes on the particle
   volume too: a particle gets ``f_drive V_p`` (force density times its volume).
-* Optional gravity ``g`` acts on the particle's excess mass, ``(rho_p - rho_f) V_p g``; the fluid
-  carries no gravity (its hydrostatic pressure would only add the buoyancy already subtracted).
+* Optional gravity ``g`` acts on the particle's excess mass, ``(rho_p - rho0) V_p g``; the fluid
+  carries no gravity (its hydrostatic pressure would only produce the buoyancy subtracted here).
 ``V_p`` is the geometric volume (``shapes.volume``), as is the mass ``rho_p V_p``.
 
 Flow-rate control with particles
 --------------------------------
-The fluid kernel's flux sum runs over particle nodes too. ``ParticleFluxCorrection`` replaces
-their contribution by the particles' own volume flux, ``sum_k n_k U_z,k`` (``n_k`` nodes), so the
-flow-rate controller holds the volumetric flow rate of the mixture.
+The fluid kernel's flux sum runs over particle nodes too. ``ParticleFluxCorrection`` replaces it by
+the volumetric flow rate of the mixture, fluid momentum (kept by exact bookkeeping of what crosses
+wall and particle links and what covering moves) plus the particles' volume flux
+``sum_k n_k U_z,k`` (``n_k`` nodes), which the controller then holds.
 
 Fixed particles
 ---------------
-Mapped once: their links are precomputed (flat indices, direction, lever arm) and each step only
-the bounce-back fill ``f[opp(i), s] = f*_i(x)`` and the force/torque sums run, skipping links
-whose fluid node a free particle currently covers.
+Never move and never remap: their links change only when a free particle covers or uncovers a
+neighbouring fluid node. Each step runs only the bounce-back fill ``f[opp(i), s] = f*_i(x)`` and
+the force and torque sums over their lists.
+
+Cost
+----
+Per step: one pass per particle over its links (``prange`` over particles: a scattered read of
+``f*_i(x)`` and a scattered write of the ghost slot per link), the 6x6 solve, the drift, the runs
+(one ray per column), the run differences, and a serial pass over the owner changes. There is no
+Python loop over particles or links. The paper's 115 cubes of 8 mm have about 190,000 links, about
+one per fluid node, so the link work costs about as much as the fluid sweep. ``benchmarks/particles.py``
+measures the split.
 """
 
 from __future__ import annotations
 
 import math
 
+import numba
 import numpy as np
 from numba import njit, prange
 
 from . import effects as fx
-from .rigid import Bodies, _rot, drift_arrays, quat_to_matrix
-from .shapes import CUBE, CYLINDER, SPHERE, bounding_radius, volume
+from .rigid import Bodies, drift_arrays, omega_lab_arrays, quat_to_matrix
+from .shapes import CYLINDER, SPHERE, bounding_radius, volume
 
 WALL = -2
 FLUID = -1
-#: directions with |e_x + e_y| = 0 contribute to the column itself
-_EPS_DIR = 1e-12
+_EPS_DIR = 1e-12  # below this a direction component counts as zero (line parallel to a face)
 
 
 # ----------------------------------------------------------------------------------------------
@@ -265,35 +292,116 @@ def compute_runs(ids, kind, h, x, q, origin, dims, periodic, run_off, rect, z1, 
                 z2[c] = zb
 
 
-@njit(cache=True)
-def _covers(k, node, rect, run_off, z1, z2, dims, az, periodic):
-    """Does particle ``k``'s run set contain memory node ``node``?"""
-    ny = dims[1]
-    a = node // (ny * az)
-    b = (node // az) % ny
-    zi = node % az
-    ca = a - rect[k, 0]
-    cb = b - rect[k, 1]
-    if periodic[0]:
-        ca %= dims[0]
-    if periodic[1]:
-        cb %= dims[1]
-    if ca < 0 or ca >= rect[k, 2] or cb < 0 or cb >= rect[k, 3]:
-        return False
-    c = run_off[k] + ca * rect[k, 3] + cb
-    lo = z1[c]
-    hi = z2[c]
-    if lo > hi:
-        return False
-    if periodic[2]:
-        return (zi - lo) % dims[2] <= hi - lo
-    return lo <= zi <= hi
+@njit(cache=True, inline="always")
+def _candidates(s1, s2, w1, w2):
+    # [s1, s2] minus [w1, w2] as (lo1, hi1, lo2, hi2); empty parts have lo > hi.
+    if w1 > w2 or w2 < s1 or w1 > s2:
+        return s1, s2, 1, 0
+    return s1, min(s2, w1 - 1), max(s1, w2 + 1), s2
+
+
+
+# ----------------------------------------------------------------------------------------------
+# Link lists: per particle and direction, appended on owner changes, compacted by the passes
+#
+# G = (dims, az, origin, periodic, xmap, ymap, zmap, e): the grid
+# L = (lbase, lcap, lcnt, LX, LS, LM, lerr, nown): the lists; entry ``lbase[p, i] + j`` for
+#     ``j < lcnt[p, i]`` holds fluid node LX, particle node LS and midpoint LM[:, .] of a link of
+#     particle p in direction i; an entry is live while owner[LS] == p and owner[LX] == FLUID.
+#     ``lerr[0]`` counts links dropped for lack of room (never expected); ``nown[p]`` is the number
+#     of nodes particle p owns.
+# The helpers are compiled without reference counting (``_nrt=False``): they allocate nothing and
+# are called per node, where the atomic reference counts of their array arguments would dominate.
+
+
+@njit(cache=True, _nrt=False)
+def _decode(node, ny, az):
+    return node // (ny * az), (node // az) % ny, node % az
+
+
+@njit(cache=True, _nrt=False)
+def _shifted(a, b, zi, dx, dy, dz, G):
+    dims, az, origin, periodic, xmap, ymap, zmap, e = G
+    return (xmap[a + dx + dims[0]] * dims[1] + ymap[b + dy + dims[1]]) * az + zmap[zi + dz + dims[2]]
+
+
+@njit(cache=True, _nrt=False)
+def _compact(p, i, owner, L):
+    # drop the dead entries of list (p, i)
+    lbase, lcap, lcnt, LX, LS, LM, lerr, nown = L
+    b0 = lbase[p, i]
+    wpos = b0
+    for pos in range(b0, b0 + lcnt[p, i]):
+        if owner[LS[pos]] == p and owner[LX[pos]] == FLUID:
+            LX[wpos] = LX[pos]
+            LS[wpos] = LS[pos]
+            for d in range(3):
+                LM[d, wpos] = LM[d, pos]
+            wpos += 1
+    lcnt[p, i] = wpos - b0
+
+
+@njit(cache=True, _nrt=False)
+def _add_link(p, i, xn, sn, sa, sb, sz, xp, owner, G, L):
+    # link of particle p in direction i from fluid node xn into its node sn = (sa, sb, sz)
+    dims, az, origin, periodic, xmap, ymap, zmap, e = G
+    lbase, lcap, lcnt, LX, LS, LM, lerr, nown = L
+    if lcnt[p, i] >= lcap[p, i]:
+        _compact(p, i, owner, L)
+        if lcnt[p, i] >= lcap[p, i]:
+            lerr[0] += 1
+            return
+    pos = lbase[p, i] + lcnt[p, i]
+    LX[pos] = xn
+    LS[pos] = sn
+    mid0 = origin[0] + sa - 0.5 * e[i, 0]
+    mid1 = origin[1] + sb - 0.5 * e[i, 1]
+    mid2 = origin[2] + sz - 0.5 * e[i, 2]
+    for d in range(3):
+        m = mid0 if d == 0 else (mid1 if d == 1 else mid2)
+        r = m - xp[d]
+        if periodic[d]:
+            per = float(dims[d])
+            r -= per * math.floor(r / per + 0.5)
+        LM[d, pos] = xp[d] + r
+    lcnt[p, i] += 1
+
+
+@njit(cache=True, _nrt=False)
+def _set_owner(node, new, owner, x, G, L):
+    """Give ``node`` to ``new`` (a particle or FLUID) and append the links this creates, so that
+    the live entries of the lists are exactly ``{(x, s, i): owner[s] >= 0, owner[x] = FLUID}``;
+    links this ends die with the owner change (lazy deletion)."""
+    old = owner[node]
+    if old == new:
+        return
+    dims, az, origin, periodic, xmap, ymap, zmap, e = G
+    nown = L[7]
+    a, b, zi = _decode(node, dims[1], az)
+    owner[node] = new
+    if old >= 0:
+        nown[old] -= 1
+    if new >= 0:
+        nown[new] += 1
+    if new >= 0:
+        for i in range(1, e.shape[0]):
+            xn = _shifted(a, b, zi, -e[i, 0], -e[i, 1], -e[i, 2], G)
+            if owner[xn] == FLUID:
+                _add_link(new, i, xn, node, a, b, zi, x[new], owner, G, L)
+    elif new == FLUID:
+        for i in range(1, e.shape[0]):
+            sn = _shifted(a, b, zi, e[i, 0], e[i, 1], e[i, 2], G)
+            p = owner[sn]
+            if p >= 0:
+                sa, sb, sz = _decode(sn, dims[1], az)
+                _add_link(p, i, node, sn, sa, sb, sz, x[p], owner, G, L)
 
 
 @njit(cache=True)
-def mark_initial(order, rect, run_off, z1, z2, xmap, ymap, zmap, dims, az, owner, count):
-    """Set the coverage count and the owners of all particles, in ``order`` (fixed ones first):
-    the first particle to claim a free node owns it."""
+def mark_initial(order, rect, run_off, z1, z2, owner, count, x, G, L):
+    """Coverage count and owners of all particles, in ``order`` (fixed ones first): the first
+    particle to claim a fluid node owns it. Builds the link lists on the way."""
+    dims, az, origin, periodic, xmap, ymap, zmap, e = G
     nx, ny, nz = dims[0], dims[1], dims[2]
     for m in range(order.shape[0]):
         k = order[m]
@@ -311,47 +419,51 @@ def mark_initial(order, rect, run_off, z1, z2, xmap, ymap, zmap, dims, az, owner
                         continue
                     count[node] += 1
                     if owner[node] == FLUID:
-                        owner[node] = k
+                        _set_owner(node, k, owner, x, G, L)
 
 
 # ----------------------------------------------------------------------------------------------
-# Per-step link work for free particles
-
-
-@njit(cache=True, inline="always")
-def _candidates(s1, s2, w1, w2):
-    # [s1, s2] minus [w1, w2] as (lo1, hi1, lo2, hi2); empty parts have lo > hi.
-    if w1 > w2 or w2 < s1 or w1 > s2:
-        return s1, s2, 1, 0
-    return s1, min(s2, w1 - 1), max(s1, w2 + 1), s2
+# Per-step coupling over the link lists
 
 
 @njit(parallel=True, cache=True, fastmath=True)
-def free_accumulate(f2, owner, ids, run_off, rect, z1, z2, xmap, ymap, zmap, dims, az, origin, x,
-                    e, w, rho0, g0, zmat):
-    """Pass 1 over the links of the free particles ``ids``: ``g0[k] = (F0, T0)`` (the velocity-free
-    parts of Eqs. (9)-(12)) and the 6x6 self-friction ``zmat[k]`` (module docstring)."""
-    nx, ny, nz = dims[0], dims[1], dims[2]
+def couple_free(f2, owner, ids, x, e, w, opp, rho0, mass, inertia, q, v, wb, fext, imp, om, force, torque,
+                exch, lbase, lcnt, LX, LS, LM, SF, SM):
+    """One step of the coupling of the free particles ``ids`` (module docstring), one particle per
+    iteration: pass 1 swap-removes dead links (lazy deletion) and sums ``(F0, T0)`` (reference pressure
+    removed) and the self-friction ``Z`` over the live ones; the implicit update ``(M + Z) V' = M V + G`` gives the new velocities; pass 2
+    writes Ladd's ghost populations Eq. (8) with ``V'``. Outputs: ``v``, ``wb``, lab ``om``, and the
+    hydrodynamic ``force`` and ``torque`` of the step (Eqs. (9)-(12) with ``V'``, plus the
+    cover/uncover impulses ``imp``, which are cleared); ``exch[k]``, the momentum the fluid loses
+    through k's links (the same with the reference pressure, for the flow-rate bookkeeping)."""
     Q = e.shape[0]
     for m in prange(ids.shape[0]):
         k = ids[m]
-        a0 = rect[k, 0]
-        b0 = rect[k, 1]
-        na = rect[k, 2]
-        nb = rect[k, 3]
-        base = run_off[k]
-        G = np.zeros(6)
-        Z = np.zeros((6, 6))
-        S = np.zeros((3, 3))
-        E = np.zeros((3, 3))
+        tid = numba.get_thread_id()
+        LF = SF[tid]
+        M = SM[tid]
+        X0 = x[k, 0]
+        X1 = x[k, 1]
+        X2 = x[k, 2]
+        off0 = lbase[k, 1]
+        for p in range(6):
+            for r in range(7):
+                M[p, r] = 0.0
+        g0 = 0.0
+        g1 = 0.0
+        g2 = 0.0
+        g3 = 0.0
+        g4 = 0.0
+        g5 = 0.0
+        e0 = 0.0
+        e1 = 0.0
+        e2 = 0.0
+        # ---- pass 1: compaction and sums per direction, folded into G and Z
         for i in range(1, Q):
-            exi = e[i, 0]
-            eyi = e[i, 1]
-            ezi = e[i, 2]
-            cnt = 0.0
-            rx_s = 0.0
-            ry_s = 0.0
-            rz_s = 0.0
+            wr = w[i] * rho0
+            rxs = 0.0
+            rys = 0.0
+            rzs = 0.0
             sxx = 0.0
             syy = 0.0
             szz = 0.0
@@ -362,206 +474,243 @@ def free_accumulate(f2, owner, ids, run_off, rect, z1, z2, xmap, ymap, zmap, dim
             sfx = 0.0
             sfy = 0.0
             sfz = 0.0
-            c0 = origin[2] - 0.5 * ezi - x[k, 2]
-            for ca in range(na):
-                na_ = ca - exi
-                a = a0 + ca
-                sa = xmap[a + nx]
-                xa = xmap[a - exi + nx]
-                rx = origin[0] + a - 0.5 * exi - x[k, 0]
-                for cb in range(nb):
-                    c = base + ca * nb + cb
-                    s1 = z1[c]
-                    s2 = z2[c]
-                    if s1 > s2:
-                        continue
-                    nb_ = cb - eyi
-                    if na_ >= 0 and na_ < na and nb_ >= 0 and nb_ < nb:
-                        cn = base + na_ * nb + nb_
-                        w1 = z1[cn] + ezi
-                        w2 = z2[cn] + ezi
-                    else:
-                        w1 = 1
-                        w2 = 0
-                    lo1, hi1, lo2, hi2 = _candidates(s1, s2, w1, w2)
-                    if lo1 > hi1 and lo2 > hi2:
-                        continue
-                    b = b0 + cb
-                    sbase = (sa * ny + ymap[b + ny]) * az
-                    xbase = (xa * ny + ymap[b - eyi + ny]) * az
-                    ry = origin[1] + b - 0.5 * eyi - x[k, 1]
-                    n = 0.0
-                    sz = 0.0
-                    sz2 = 0.0
-                    sff = 0.0
-                    sfzz = 0.0
-                    for part in range(2):
-                        lo = lo1 if part == 0 else lo2
-                        hi = hi1 if part == 0 else hi2
-                        for z in range(lo, hi + 1):
-                            if owner[sbase + zmap[z + nz]] != k:
-                                continue
-                            xn = xbase + zmap[z - ezi + nz]
-                            if owner[xn] != FLUID:
-                                continue
-                            fv = f2[i, xn]
-                            zf = float(z)
-                            n += 1.0
-                            sz += zf
-                            sz2 += zf * zf
-                            sff += fv
-                            sfzz += fv * zf
-                    if n == 0.0:
-                        continue
-                    rzn = c0 * n + sz
-                    cnt += n
-                    rx_s += rx * n
-                    ry_s += ry * n
-                    rz_s += rzn
-                    sxx += rx * rx * n
-                    syy += ry * ry * n
-                    sxy += rx * ry * n
-                    sxz += rx * rzn
-                    syz += ry * rzn
-                    szz += c0 * c0 * n + 2.0 * c0 * sz + sz2
-                    sf += sff
-                    sfx += rx * sff
-                    sfy += ry * sff
-                    sfz += c0 * sff + sfzz
+            b0 = lbase[k, i]
+            end = b0 + lcnt[k, i]
+            pos = b0
+            while pos < end:
+                xn = LX[pos]
+                sn = LS[pos]
+                if owner[sn] != k or owner[xn] != FLUID:
+                    # dead link: the last entry takes its place (swap-remove)
+                    end -= 1
+                    LX[pos] = LX[end]
+                    LS[pos] = LS[end]
+                    LM[0, pos] = LM[0, end]
+                    LM[1, pos] = LM[1, end]
+                    LM[2, pos] = LM[2, end]
+                    continue
+                m0 = LM[0, pos]
+                m1 = LM[1, pos]
+                m2 = LM[2, pos]
+                fv = f2[i, xn]
+                LF[pos - off0] = fv
+                pos += 1
+                fv -= wr
+                rx = m0 - X0
+                ry = m1 - X1
+                rz = m2 - X2
+                rxs += rx
+                rys += ry
+                rzs += rz
+                sxx += rx * rx
+                syy += ry * ry
+                szz += rz * rz
+                sxy += rx * ry
+                sxz += rx * rz
+                syz += ry * rz
+                sf += fv
+                sfx += fv * rx
+                sfy += fv * ry
+                sfz += fv * rz
+            lcnt[k, i] = end - b0
+            cnt = float(end - b0)
             if cnt == 0.0:
                 continue
-            fe = float(exi)
-            fey = float(eyi)
-            fez = float(ezi)
-            # F0 = sum 2 e f;  T0 = sum r x 2 e f = 2 (sum f r) x e
-            G[0] += 2.0 * fe * sf
-            G[1] += 2.0 * fey * sf
-            G[2] += 2.0 * fez * sf
-            G[3] += 2.0 * (sfy * fez - sfz * fey)
-            G[4] += 2.0 * (sfz * fe - sfx * fez)
-            G[5] += 2.0 * (sfx * fey - sfy * fe)
-            c6 = 6.0 * w[i] * rho0
-            ev = (fe, fey, fez)
-            # R x e (sum over links of r x e)
-            rxe0 = ry_s * fez - rz_s * fey
-            rxe1 = rz_s * fe - rx_s * fez
-            rxe2 = rx_s * fey - ry_s * fe
-            rxe = (rxe0, rxe1, rxe2)
-            for p in range(3):
-                for r in range(3):
-                    Z[p, r] += c6 * cnt * ev[p] * ev[r]
-                    Z[p, 3 + r] += c6 * ev[p] * rxe[r]
-            # sum (r x e)(r x e)^T = E S E^T with E = [e]_x
-            S[0, 0] = sxx
-            S[1, 1] = syy
-            S[2, 2] = szz
-            S[0, 1] = sxy
-            S[1, 0] = sxy
-            S[0, 2] = sxz
-            S[2, 0] = sxz
-            S[1, 2] = syz
-            S[2, 1] = syz
-            E[0, 1] = -fez
-            E[0, 2] = fey
-            E[1, 0] = fez
-            E[1, 2] = -fe
-            E[2, 0] = -fey
-            E[2, 1] = fe
-            # r x e = -E r, so (r x e)(r x e)^T = E r r^T E^T
-            for p in range(3):
-                for r in range(3):
-                    acc = 0.0
-                    for s in range(3):
-                        for t in range(3):
-                            acc += E[p, s] * S[s, t] * E[r, t]
-                    Z[3 + p, 3 + r] += c6 * acc
+            ex = float(e[i, 0])
+            ey = float(e[i, 1])
+            ez = float(e[i, 2])
+            # the reference part the particle does not take (module docstring) still leaves the fluid
+            e0 += 2.0 * ex * wr * cnt
+            e1 += 2.0 * ey * wr * cnt
+            e2 += 2.0 * ez * wr * cnt
+            # F0 = sum 2 e (f - w rho0);  T0 = 2 (sum (f - w rho0) r) x e
+            g0 += 2.0 * ex * sf
+            g1 += 2.0 * ey * sf
+            g2 += 2.0 * ez * sf
+            g3 += 2.0 * (sfy * ez - sfz * ey)
+            g4 += 2.0 * (sfz * ex - sfx * ez)
+            g5 += 2.0 * (sfx * ey - sfy * ex)
+            c6 = 6.0 * wr
+            # Z_UU += c6 n e e^T;  Z_UO += c6 e (R x e)^T with R = sum r
+            q0 = rys * ez - rzs * ey
+            q1 = rzs * ex - rxs * ez
+            q2 = rxs * ey - rys * ex
+            M[0, 0] += c6 * cnt * ex * ex
+            M[0, 1] += c6 * cnt * ex * ey
+            M[0, 2] += c6 * cnt * ex * ez
+            M[1, 1] += c6 * cnt * ey * ey
+            M[1, 2] += c6 * cnt * ey * ez
+            M[2, 2] += c6 * cnt * ez * ez
+            M[0, 3] += c6 * ex * q0
+            M[0, 4] += c6 * ex * q1
+            M[0, 5] += c6 * ex * q2
+            M[1, 3] += c6 * ey * q0
+            M[1, 4] += c6 * ey * q1
+            M[1, 5] += c6 * ey * q2
+            M[2, 3] += c6 * ez * q0
+            M[2, 4] += c6 * ez * q1
+            M[2, 5] += c6 * ez * q2
+            # Z_OO += c6 sum (r x e)(r x e)^T; r x e = (ry ez - rz ey, rz ex - rx ez, rx ey - ry ex)
+            M[3, 3] += c6 * (syy * ez * ez - 2.0 * syz * ey * ez + szz * ey * ey)
+            M[4, 4] += c6 * (szz * ex * ex - 2.0 * sxz * ex * ez + sxx * ez * ez)
+            M[5, 5] += c6 * (sxx * ey * ey - 2.0 * sxy * ex * ey + syy * ex * ex)
+            M[3, 4] += c6 * (syz * ex * ez - sxy * ez * ez - szz * ex * ey + sxz * ey * ez)
+            M[3, 5] += c6 * (sxy * ey * ez - syy * ex * ez - sxz * ey * ey + syz * ex * ey)
+            M[4, 5] += c6 * (sxz * ex * ey - syz * ex * ex - sxx * ey * ez + sxy * ex * ez)
+        for p in range(6):
+            for r in range(p):
+                M[p, r] = M[r, p]
+        Zc = np.empty((6, 6))
+        for p in range(6):
+            for r in range(6):
+                Zc[p, r] = M[p, r]
+        # ---- implicit update: (M + Z) V' = M V + G
+        A = quat_to_matrix(q[k])
+        G = (g0, g1, g2, g3, g4, g5)
+        for p in range(3):
+            M[p, p] += mass[k]
+            M[p, 6] = mass[k] * v[k, p] + G[p] + fext[k, p] + imp[k, p]
         for p in range(3):
             for r in range(3):
-                Z[3 + r, p] = Z[p, 3 + r]
-        for p in range(6):
-            g0[k, p] = G[p]
+                acc = 0.0
+                for s_ in range(3):
+                    acc += A[p, s_] * inertia[k, s_] * A[r, s_]
+                M[3 + p, 3 + r] += acc
+            acc = 0.0
+            for s_ in range(3):
+                acc += A[p, s_] * inertia[k, s_] * wb[k, s_]
+            M[3 + p, 6] = acc + G[3 + p] + fext[k, 3 + p] + imp[k, 3 + p]
+        _solve6(M)
+        for p in range(3):
+            v[k, p] = M[p, 6]
+            om[k, p] = M[3 + p, 6]
+        for p in range(3):  # body frame: wb = A^T Omega
+            wb[k, p] = A[0, p] * M[3, 6] + A[1, p] * M[4, 6] + A[2, p] * M[5, 6]
+        for p in range(3):
+            fz_ = 0.0
+            tz_ = 0.0
             for r in range(6):
-                zmat[k, p, r] = Z[p, r]
+                fz_ += Zc[p, r] * M[r, 6]
+                tz_ += Zc[3 + p, r] * M[r, 6]
+            force[k, p] = G[p] - fz_ + imp[k, p]
+            torque[k, p] = G[3 + p] - tz_ + imp[k, 3 + p]
+        exch[k, 0] = force[k, 0] - imp[k, 0] + e0
+        exch[k, 1] = force[k, 1] - imp[k, 1] + e1
+        exch[k, 2] = force[k, 2] - imp[k, 2] + e2
+        for p in range(6):
+            imp[k, p] = 0.0
+        # ---- pass 2: ghost fill, Eq. (8), with the new velocity
+        ux = v[k, 0]
+        uy = v[k, 1]
+        uz = v[k, 2]
+        ox = om[k, 0]
+        oy = om[k, 1]
+        oz = om[k, 2]
+        for i in range(1, Q):
+            ex = float(e[i, 0])
+            ey = float(e[i, 1])
+            ez = float(e[i, 2])
+            oi = opp[i]
+            c6 = 6.0 * w[i] * rho0
+            # e . u_b = e . U + Omega . (r x e) = e . U + r . (e x Omega)
+            eu = ex * ux + ey * uy + ez * uz - (X0 * (ey * oz - ez * oy) + X1 * (ez * ox - ex * oz) + X2 * (ex * oy - ey * ox))
+            cx = c6 * (ey * oz - ez * oy)
+            cy = c6 * (ez * ox - ex * oz)
+            cz = c6 * (ex * oy - ey * ox)
+            c6eu = c6 * eu
+            b0 = lbase[k, i]
+            for pos in range(b0, b0 + lcnt[k, i]):
+                f2[oi, LS[pos]] = LF[pos - off0] - c6eu - LM[0, pos] * cx - LM[1, pos] * cy - LM[2, pos] * cz
 
 
 @njit(parallel=True, cache=True, fastmath=True)
-def free_fill(f2, owner, ids, run_off, rect, z1, z2, xmap, ymap, zmap, dims, az, origin, x, v, om,
-              e, w, opp, rho0):
-    """Pass 2: Ladd's ghost fill Eq. (8) on every link of the free particles ``ids``, with the
-    (new) velocity ``v`` and lab angular velocity ``om``."""
-    nx, ny, nz = dims[0], dims[1], dims[2]
+def fixed_fill(f2, owner, ids, x, e, w, opp, rho0, force, torque, exch, lbase, lcnt, LX, LS, LM):
+    """Fixed particles: half-way bounce-back on their live links (Eq. (8) with u_b = 0; dead links
+    are dropped) and their force and torque, Eqs. (9)-(12) (reference pressure removed); ``exch``
+    as in ``couple_free``."""
     Q = e.shape[0]
     for m in prange(ids.shape[0]):
         k = ids[m]
-        a0 = rect[k, 0]
-        b0 = rect[k, 1]
-        na = rect[k, 2]
-        nb = rect[k, 3]
-        base = run_off[k]
-        ox, oy, oz = om[k, 0], om[k, 1], om[k, 2]
+        fx_ = 0.0
+        fy_ = 0.0
+        fz_ = 0.0
+        tx = 0.0
+        ty = 0.0
+        tz = 0.0
+        e0 = 0.0
+        e1 = 0.0
+        e2 = 0.0
         for i in range(1, Q):
-            exi = e[i, 0]
-            eyi = e[i, 1]
-            ezi = e[i, 2]
-            fe = float(exi)
-            fey = float(eyi)
-            fez = float(ezi)
             oi = opp[i]
-            c6 = 6.0 * w[i] * rho0
-            eu = fe * v[k, 0] + fey * v[k, 1] + fez * v[k, 2]
-            c0 = origin[2] - 0.5 * ezi - x[k, 2]
-            for ca in range(na):
-                na_ = ca - exi
-                a = a0 + ca
-                sa = xmap[a + nx]
-                xa = xmap[a - exi + nx]
-                rx = origin[0] + a - 0.5 * exi - x[k, 0]
-                for cb in range(nb):
-                    c = base + ca * nb + cb
-                    s1 = z1[c]
-                    s2 = z2[c]
-                    if s1 > s2:
-                        continue
-                    nb_ = cb - eyi
-                    if na_ >= 0 and na_ < na and nb_ >= 0 and nb_ < nb:
-                        cn = base + na_ * nb + nb_
-                        w1 = z1[cn] + ezi
-                        w2 = z2[cn] + ezi
-                    else:
-                        w1 = 1
-                        w2 = 0
-                    lo1, hi1, lo2, hi2 = _candidates(s1, s2, w1, w2)
-                    if lo1 > hi1 and lo2 > hi2:
-                        continue
-                    b = b0 + cb
-                    sbase = (sa * ny + ymap[b + ny]) * az
-                    xbase = (xa * ny + ymap[b - eyi + ny]) * az
-                    ry = origin[1] + b - 0.5 * eyi - x[k, 1]
-                    # e . u_b = e.U + Omega . (r x e), linear in z: alpha + beta z
-                    alpha = eu + ox * (ry * fez - c0 * fey) + oy * (c0 * fe - rx * fez) + oz * (rx * fey - ry * fe)
-                    beta = -ox * fey + oy * fe
-                    for part in range(2):
-                        lo = lo1 if part == 0 else lo2
-                        hi = hi1 if part == 0 else hi2
-                        for z in range(lo, hi + 1):
-                            sn = sbase + zmap[z + nz]
-                            if owner[sn] != k:
-                                continue
-                            xn = xbase + zmap[z - ezi + nz]
-                            if owner[xn] != FLUID:
-                                continue
-                            f2[oi, sn] = f2[i, xn] - c6 * (alpha + beta * z)
+            wr = w[i] * rho0
+            sf = 0.0
+            sfx = 0.0
+            sfy = 0.0
+            sfz = 0.0
+            b0 = lbase[k, i]
+            end = b0 + lcnt[k, i]
+            pos = b0
+            while pos < end:
+                xn = LX[pos]
+                sn = LS[pos]
+                if owner[sn] != k or owner[xn] != FLUID:
+                    end -= 1
+                    LX[pos] = LX[end]
+                    LS[pos] = LS[end]
+                    LM[0, pos] = LM[0, end]
+                    LM[1, pos] = LM[1, end]
+                    LM[2, pos] = LM[2, end]
+                    continue
+                m0 = LM[0, pos]
+                m1 = LM[1, pos]
+                m2 = LM[2, pos]
+                pos += 1
+                fv = f2[i, xn]
+                f2[oi, sn] = fv
+                fv -= wr
+                sf += fv
+                sfx += fv * (m0 - x[k, 0])
+                sfy += fv * (m1 - x[k, 1])
+                sfz += fv * (m2 - x[k, 2])
+            lcnt[k, i] = end - b0
+            ex = float(e[i, 0])
+            e0 += 2.0 * ex * wr * (end - b0)
+            e1 += 2.0 * float(e[i, 1]) * wr * (end - b0)
+            e2 += 2.0 * float(e[i, 2]) * wr * (end - b0)
+            ey = float(e[i, 1])
+            ez = float(e[i, 2])
+            fx_ += 2.0 * ex * sf
+            fy_ += 2.0 * ey * sf
+            fz_ += 2.0 * ez * sf
+            tx += 2.0 * (sfy * ez - sfz * ey)
+            ty += 2.0 * (sfz * ex - sfx * ez)
+            tz += 2.0 * (sfx * ey - sfy * ex)
+        force[k, 0] = fx_
+        force[k, 1] = fy_
+        force[k, 2] = fz_
+        torque[k, 0] = tx
+        torque[k, 1] = ty
+        torque[k, 2] = tz
+        exch[k, 0] = fx_ + e0
+        exch[k, 1] = fy_ + e1
+        exch[k, 2] = fz_ + e2
 
 
 @njit(cache=True)
-def _solve6(K, rhs):
-    # Gaussian elimination with partial pivoting of a 6x6 system (K is SPD here).
+def _accumulate(ids, force, torque, force_sum, torque_sum, n_sum):
+    for m in range(ids.shape[0]):
+        k = ids[m]
+        for p in range(3):
+            force_sum[k, p] += force[k, p]
+            torque_sum[k, p] += torque[k, p]
+        n_sum[k] += 1
+
+
+@njit(cache=True)
+def _solve6(M):
+    """Solve the 6x6 system held in ``M`` (6, 7) (matrix | right-hand side) in place by Gaussian
+    elimination with partial pivoting; the solution ends in ``M[:, 6]``."""
     n = 6
-    M = np.empty((n, n + 1))
-    for p in range(n):
-        for r in range(n):
-            M[p, r] = K[p, r]
-        M[p, n] = rhs[p]
     for col in range(n):
         piv = col
         for r in range(col + 1, n):
@@ -575,184 +724,14 @@ def _solve6(K, rhs):
         d = M[col, col]
         for r in range(col + 1, n):
             fct = M[r, col] / d
-            if fct != 0.0:
-                for c in range(col, n + 1):
-                    M[r, c] -= fct * M[col, c]
-    out = np.empty(n)
+            for c in range(col, n + 1):
+                M[r, c] -= fct * M[col, c]
     for r in range(n - 1, -1, -1):
         acc = M[r, n]
         for c in range(r + 1, n):
-            acc -= M[r, c] * out[c]
-        out[r] = acc / M[r, r]
-    return out
+            acc -= M[r, c] * M[c, n]
+        M[r, n] = acc / M[r, r]
 
-
-@njit(parallel=True, cache=True)
-def implicit_update(ids, mass, inertia, q, v, wb, g0, zmat, fext, imp, om_out, force, torque):
-    """Implicit velocity update ``(M + Z) V' = M V + G`` (module docstring) of the free particles
-    ``ids``; writes ``v``, ``wb``, the lab angular velocity ``om_out`` and the hydrodynamic force
-    and torque of the step, ``(F0, T0) - Z V' + impulses``; clears the impulses ``imp``."""
-    for m in prange(ids.shape[0]):
-        k = ids[m]
-        A = quat_to_matrix(q[k])
-        K = np.zeros((6, 6))
-        rhs = np.empty(6)
-        for p in range(3):
-            K[p, p] = mass[k]
-            rhs[p] = mass[k] * v[k, p] + g0[k, p] + fext[k, p] + imp[k, p]
-        # lab inertia A diag(I) A^T and lab angular momentum A (I wb)
-        for p in range(3):
-            for r in range(3):
-                acc = 0.0
-                for s in range(3):
-                    acc += A[p, s] * inertia[k, s] * A[r, s]
-                K[3 + p, 3 + r] = acc
-        for p in range(3):
-            acc = 0.0
-            for s in range(3):
-                acc += A[p, s] * inertia[k, s] * wb[k, s]
-            rhs[3 + p] = acc + g0[k, 3 + p] + fext[k, 3 + p] + imp[k, 3 + p]
-        for p in range(6):
-            for r in range(6):
-                K[p, r] += zmat[k, p, r]
-        V = _solve6(K, rhs)
-        for p in range(3):
-            v[k, p] = V[p]
-            om_out[k, p] = V[3 + p]
-        for p in range(3):  # wb = A^T Omega
-            wb[k, p] = A[0, p] * V[3] + A[1, p] * V[4] + A[2, p] * V[5]
-        for p in range(3):
-            fz = 0.0
-            tz = 0.0
-            for r in range(6):
-                fz += zmat[k, p, r] * V[r]
-                tz += zmat[k, 3 + p, r] * V[r]
-            force[k, p] = g0[k, p] - fz + imp[k, p]
-            torque[k, p] = g0[k, 3 + p] - tz + imp[k, 3 + p]
-        for p in range(6):
-            imp[k, p] = 0.0
-
-
-@njit(cache=True)
-def _accumulate(ids, force, torque, force_sum, torque_sum, n_sum):
-    for m in range(ids.shape[0]):
-        k = ids[m]
-        for p in range(3):
-            force_sum[k, p] += force[k, p]
-            torque_sum[k, p] += torque[k, p]
-        n_sum[k] += 1
-
-
-# ----------------------------------------------------------------------------------------------
-# Fixed particles: links mapped once
-
-
-@njit(cache=True)
-def _fixed_links_pass(ids, is_fixed, owner, run_off, rect, z1, z2, xmap, ymap, zmap, dims, az, e, origin, x,
-                      off, lx, ls, li, lr, store):
-    # Links from nodes outside a fixed particle's runs into nodes it owns. Wall nodes and nodes of
-    # other fixed particles never hold fluid; nodes of free particles may later (checked per step).
-    nx, ny, nz = dims[0], dims[1], dims[2]
-    counts = np.zeros(ids.shape[0], np.int64)
-    for m in range(ids.shape[0]):
-        k = ids[m]
-        a0, b0, na, nb = rect[k, 0], rect[k, 1], rect[k, 2], rect[k, 3]
-        base = run_off[k]
-        cnt = off[m] if store else 0
-        for i in range(1, e.shape[0]):
-            exi, eyi, ezi = e[i, 0], e[i, 1], e[i, 2]
-            for ca in range(na):
-                for cb in range(nb):
-                    c = base + ca * nb + cb
-                    s1, s2 = z1[c], z2[c]
-                    if s1 > s2:
-                        continue
-                    na_, nb_ = ca - exi, cb - eyi
-                    if 0 <= na_ < na and 0 <= nb_ < nb:
-                        cn = base + na_ * nb + nb_
-                        w1, w2 = z1[cn] + ezi, z2[cn] + ezi
-                    else:
-                        w1, w2 = 1, 0
-                    lo1, hi1, lo2, hi2 = _candidates(s1, s2, w1, w2)
-                    a, b = a0 + ca, b0 + cb
-                    sbase = (xmap[a + nx] * ny + ymap[b + ny]) * az
-                    xbase = (xmap[a - exi + nx] * ny + ymap[b - eyi + ny]) * az
-                    for part in range(2):
-                        lo = lo1 if part == 0 else lo2
-                        hi = hi1 if part == 0 else hi2
-                        for z in range(lo, hi + 1):
-                            sn = sbase + zmap[z + nz]
-                            if owner[sn] != k:
-                                continue
-                            xn = xbase + zmap[z - ezi + nz]
-                            ox = owner[xn]
-                            if ox == WALL or (ox >= 0 and is_fixed[ox]):
-                                continue
-                            if store:
-                                lx[cnt] = xn
-                                ls[cnt] = sn
-                                li[cnt] = i
-                                lr[cnt, 0] = origin[0] + a - 0.5 * exi - x[k, 0]
-                                lr[cnt, 1] = origin[1] + b - 0.5 * eyi - x[k, 1]
-                                lr[cnt, 2] = origin[2] + z - 0.5 * ezi - x[k, 2]
-                            cnt += 1
-        counts[m] = cnt - (off[m] if store else 0)
-    return counts
-
-
-def map_fixed_links(ids, is_fixed, owner, run_off, rect, z1, z2, xmap, ymap, zmap, dims, az, e, origin, x):
-    """Links of the fixed particles ``ids`` as CSR arrays ``(off, x, s, i, r)`` (flat fluid node,
-    flat particle node, direction, lever arm ``x + e_i/2 - X``)."""
-    args = (ids, is_fixed, owner, run_off, rect, z1, z2, xmap, ymap, zmap, dims, az, e, origin, x)
-    empty = (np.zeros(len(ids) + 1, np.int64), np.zeros(0, np.int64), np.zeros(0, np.int64),
-             np.zeros(0, np.int64), np.zeros((0, 3)))
-    counts = _fixed_links_pass(*args, *empty, False)
-    off = np.zeros(len(ids) + 1, np.int64)
-    off[1:] = np.cumsum(counts)
-    tot = int(off[-1])
-    lx, ls, li, lr = np.zeros(tot, np.int64), np.zeros(tot, np.int64), np.zeros(tot, np.int64), np.zeros((tot, 3))
-    _fixed_links_pass(*args, off, lx, ls, li, lr, True)
-    return off, lx, ls, li, lr
-
-
-@njit(parallel=True, cache=True, fastmath=True)
-def fixed_fill(f2, owner, off, lx, ls, li, lr, e, opp, force, torque, ids):
-    """Half-way bounce-back on the precomputed links of fixed particles (Eq. (8) with u_b = 0)
-    and their force and torque, Eqs. (9)-(12)."""
-    for m in prange(ids.shape[0]):
-        k = ids[m]
-        fx_ = 0.0
-        fy_ = 0.0
-        fz_ = 0.0
-        tx = 0.0
-        ty = 0.0
-        tz = 0.0
-        for l in range(off[m], off[m + 1]):
-            xn = lx[l]
-            if owner[xn] != FLUID:
-                continue
-            i = li[l]
-            fv = f2[i, xn]
-            f2[opp[i], ls[l]] = fv
-            gx = 2.0 * e[i, 0] * fv
-            gy = 2.0 * e[i, 1] * fv
-            gz = 2.0 * e[i, 2] * fv
-            fx_ += gx
-            fy_ += gy
-            fz_ += gz
-            tx += lr[l, 1] * gz - lr[l, 2] * gy
-            ty += lr[l, 2] * gx - lr[l, 0] * gz
-            tz += lr[l, 0] * gy - lr[l, 1] * gx
-        force[k, 0] = fx_
-        force[k, 1] = fy_
-        force[k, 2] = fz_
-        torque[k, 0] = tx
-        torque[k, 1] = ty
-        torque[k, 2] = tz
-
-
-# ----------------------------------------------------------------------------------------------
-# Remap after a move: coverage changes, owners, covered/uncovered momentum
 
 
 @njit(parallel=True, cache=True)
@@ -814,31 +793,58 @@ def diff_runs(ids, run_off, rect_o, z1o, z2o, rect_n, z1n, z2n, xmap, ymap, zmap
         chg_n[m] = cnt - chg_off[m]
 
 
-@njit(cache=True)
-def _node_vector(node, xk, origin, dims, az, periodic):
-    # Minimum-image vector from the centre xk to the node's centre.
+# ----------------------------------------------------------------------------------------------
+# Remap after a move: coverage changes, owners (and links), covered/uncovered momentum
+
+
+@njit(cache=True, _nrt=False)
+def _covers(k, node, rect, run_off, z1, z2, dims, az, periodic):
+    """Does particle ``k``'s run set contain memory node ``node``?"""
     ny = dims[1]
-    a = node // (ny * az)
-    b = (node // az) % ny
-    zi = node % az
-    r = np.empty(3)
-    r[0] = origin[0] + a - xk[0]
-    r[1] = origin[1] + b - xk[1]
-    r[2] = origin[2] + zi - xk[2]
-    for d in range(3):
-        if periodic[d]:
-            L = float(dims[d])
-            r[d] -= L * math.floor(r[d] / L + 0.5)
-    return r
+    a, b, zi = _decode(node, ny, az)
+    ca = a - rect[k, 0]
+    cb = b - rect[k, 1]
+    if periodic[0]:
+        ca %= dims[0]
+    if periodic[1]:
+        cb %= dims[1]
+    if ca < 0 or ca >= rect[k, 2] or cb < 0 or cb >= rect[k, 3]:
+        return False
+    c = run_off[k] + ca * rect[k, 3] + cb
+    lo = z1[c]
+    hi = z2[c]
+    if lo > hi:
+        return False
+    if periodic[2]:
+        return (zi - lo) % dims[2] <= hi - lo
+    return lo <= zi <= hi
+
+
+@njit(cache=True, _nrt=False)
+def _node_vector(node, xk, G):
+    # minimum-image vector from the centre xk to the node's centre
+    dims, az, origin, periodic, xmap, ymap, zmap, e = G
+    a, b, zi = _decode(node, dims[1], az)
+    r0 = origin[0] + a - xk[0]
+    r1 = origin[1] + b - xk[1]
+    r2 = origin[2] + zi - xk[2]
+    if periodic[0]:
+        r0 -= dims[0] * math.floor(r0 / dims[0] + 0.5)
+    if periodic[1]:
+        r1 -= dims[1] * math.floor(r1 / dims[1] + 0.5)
+    if periodic[2]:
+        r2 -= dims[2] * math.floor(r2 / dims[2] + 0.5)
+    return r0, r1, r2
 
 
 @njit(cache=True)
-def apply_changes(ids, chg_off, chg_node, chg_d, chg_n, all_ids, rect, run_off, z1, z2, dims, az, periodic,
-                  origin, x, v, om, owner, count, touched, acq, touch_list, unc_list, unc_old, f2, e, w, opp,
-                  xmap, ymap, zmap, rho0, imp):
-    """Apply the coverage changes and settle owners (module docstring): momentum of covered
-    nodes to the particle, uncovered nodes refilled at the surface velocity. Returns
+def apply_changes(ids, chg_off, chg_node, chg_d, chg_n, all_ids, rect, run_off, z1, z2, x, v, om, owner, count,
+                  touched, acq, touch_list, unc_list, unc_old, f2, w, rho0, imp, moved, G, L):
+    """Apply the coverage changes of a move and settle the owners (module docstring): momentum of
+    covered nodes to the particle, uncovered nodes refilled at the surface velocity, links updated
+    with each owner. ``moved`` (3,) receives the momentum that left the fluid. Returns
     ``(n_covered, n_uncovered)``. Serial: the changes are few (surface nodes that moved)."""
+    dims, az, origin, periodic, xmap, ymap, zmap, e = G
     nt = 0
     for m in range(ids.shape[0]):
         k = ids[m]
@@ -874,14 +880,14 @@ def apply_changes(ids, chg_off, chg_node, chg_d, chg_n, all_ids, rect, run_off, 
                         if _covers(kk, node, rect, run_off, z1, z2, dims, az, periodic):
                             new = kk
                             break
-                    if new == FLUID:  # inconsistent count (cannot happen): trust the geometry
+                    if new == FLUID:  # a count without a covering shape cannot happen; trust the shapes
                         count[node] = 0
         acq[node] = -1
         if new == old:
             continue
         if old == FLUID:
-            # fluid node swallowed: its momentum goes to the particle
-            r = _node_vector(node, x[new], origin, dims, az, periodic)
+            # a fluid node swallowed: its momentum goes to the particle
+            r = _node_vector(node, x[new], G)
             jx = 0.0
             jy = 0.0
             jz = 0.0
@@ -893,6 +899,9 @@ def apply_changes(ids, chg_off, chg_node, chg_d, chg_n, all_ids, rect, run_off, 
             imp[new, 0] += jx
             imp[new, 1] += jy
             imp[new, 2] += jz
+            moved[0] += jx
+            moved[1] += jy
+            moved[2] += jz
             imp[new, 3] += r[1] * jz - r[2] * jy
             imp[new, 4] += r[2] * jx - r[0] * jz
             imp[new, 5] += r[0] * jy - r[1] * jx
@@ -901,26 +910,28 @@ def apply_changes(ids, chg_off, chg_node, chg_d, chg_n, all_ids, rect, run_off, 
             unc_list[n_unc] = node
             unc_old[n_unc] = old
             n_unc += 1
-        owner[node] = new
-    nx, ny, nz = dims[0], dims[1], dims[2]
+        _set_owner(node, new, owner, x, G, L)
+    ny = dims[1]
     for u in range(n_unc):
         node = unc_list[u]
         k = unc_old[u]
-        a = node // (ny * az)
-        b = (node // az) % ny
-        zi = node % az
+        a, b, zi = _decode(node, ny, az)
+        # density of the neighbours along z (same cache lines as the node), else along x and y
         rho = 0.0
         nn = 0
-        for i in range(1, Q):
-            nb = (xmap[a + e[i, 0] + nx] * ny + ymap[b + e[i, 1] + ny]) * az + zmap[zi + e[i, 2] + nz]
-            if owner[nb] == FLUID and not touched[nb]:
-                s = 0.0
-                for j in range(Q):
-                    s += f2[j, nb]
-                rho += s
-                nn += 1
+        for axis in (2, 0, 1):
+            for sgn in (-1, 1):
+                nb = _shifted(a, b, zi, sgn * (axis == 0), sgn * (axis == 1), sgn * (axis == 2), G)
+                if owner[nb] == FLUID and not touched[nb]:
+                    s = 0.0
+                    for j in range(Q):
+                        s += f2[j, nb]
+                    rho += s
+                    nn += 1
+            if nn > 0:
+                break
         rho = rho / nn if nn > 0 else rho0
-        r = _node_vector(node, x[k], origin, dims, az, periodic)
+        r = _node_vector(node, x[k], G)
         ux = v[k, 0] + om[k, 1] * r[2] - om[k, 2] * r[1]
         uy = v[k, 1] + om[k, 2] * r[0] - om[k, 0] * r[2]
         uz = v[k, 2] + om[k, 0] * r[1] - om[k, 1] * r[0]
@@ -934,6 +945,9 @@ def apply_changes(ids, chg_off, chg_node, chg_d, chg_n, all_ids, rect, run_off, 
         imp[k, 0] -= px
         imp[k, 1] -= py
         imp[k, 2] -= pz
+        moved[0] -= px
+        moved[1] -= py
+        moved[2] -= pz
         imp[k, 3] -= r[1] * pz - r[2] * py
         imp[k, 4] -= r[2] * px - r[0] * pz
         imp[k, 5] -= r[0] * py - r[1] * px
@@ -943,19 +957,19 @@ def apply_changes(ids, chg_off, chg_node, chg_d, chg_n, all_ids, rect, run_off, 
 
 
 @njit(cache=True)
-def wrap_positions(ids, x, lo, dims, periodic, rect, run_off, z1, z2):
-    """Bring centres back into the periodic box and shift their runs by the same whole number of
-    periods."""
+def wrap_positions(ids, x, lo, dims, periodic, rect, run_off, z1, z2, lbase, lcnt, LM):
+    """Bring centres back into the periodic box; shift their runs and link midpoints by the same
+    whole number of periods."""
     for m in range(ids.shape[0]):
         k = ids[m]
         for d in range(3):
             if not periodic[d]:
                 continue
-            L = float(dims[d])
-            s = math.floor((x[k, d] - lo[d]) / L)
+            per = float(dims[d])
+            s = math.floor((x[k, d] - lo[d]) / per)
             if s == 0:
                 continue
-            x[k, d] -= s * L
+            x[k, d] -= s * per
             shift = int(s) * dims[d]
             if d < 2:
                 rect[k, d] -= shift
@@ -963,6 +977,9 @@ def wrap_positions(ids, x, lo, dims, periodic, rect, run_off, z1, z2):
                 for c in range(run_off[k], run_off[k] + rect[k, 2] * rect[k, 3]):
                     z1[c] -= shift
                     z2[c] -= shift
+            for i in range(1, lbase.shape[1]):
+                for pos in range(lbase[k, i], lbase[k, i] + lcnt[k, i]):
+                    LM[d, pos] -= s * per
 
 
 # ----------------------------------------------------------------------------------------------
@@ -970,32 +987,20 @@ def wrap_positions(ids, x, lo, dims, periodic, rect, run_off, z1, z2):
 
 
 @njit(parallel=True, cache=True)
-def particle_node_flux(f2, owner, ids, run_off, rect, z1, z2, xmap, ymap, zmap, dims, az, ez, out_j, out_n):
-    """Per particle: the z-momentum ``sum_i e_iz f_i`` held by its nodes (``out_j``) and their
-    number (``out_n``)."""
-    nx, ny, nz = dims[0], dims[1], dims[2]
-    Q = ez.shape[0]
-    for m in prange(ids.shape[0]):
-        k = ids[m]
-        base = run_off[k]
-        nb = rect[k, 3]
-        j = 0.0
-        cnt = 0
-        for ca in range(rect[k, 2]):
-            a = xmap[rect[k, 0] + ca + nx]
-            for cb in range(nb):
-                c = base + ca * nb + cb
-                col = (a * ny + ymap[rect[k, 1] + cb + ny]) * az
-                for z in range(z1[c], z2[c] + 1):
-                    node = col + zmap[z + nz]
-                    if owner[node] != k:
-                        continue
-                    cnt += 1
-                    for i in range(Q):
-                        if ez[i] != 0:
-                            j += ez[i] * f2[i, node]
-        out_j[k] = j
-        out_n[k] = cnt
+def wall_exchange(f2, owner, fluid, solid, i, opp, ez):
+    """z-momentum the fluid loses through the wall links ``(fluid, solid, i)`` this step:
+    ``sum e_iz (f_i(x) + f_opp(i)(s))``: the population that leaves ``x`` and the one the wall
+    sends back (any wall rule), on links whose fluid node is not covered by a particle."""
+    n = fluid.shape[0]
+    nchunk = 32
+    part = np.zeros(nchunk)
+    for c in prange(nchunk):
+        acc = 0.0
+        for k in range(c * n // nchunk, (c + 1) * n // nchunk):
+            if owner[fluid[k]] == FLUID:
+                acc += ez[k] * (f2[i[k], fluid[k]] + f2[opp[k], solid[k]])
+        part[c] = acc
+    return part.sum()
 
 
 @njit(parallel=True, cache=True)
@@ -1029,10 +1034,12 @@ def _wrap_table(n: int, periodic: bool) -> np.ndarray:
 
 
 class ParticleSystem:
-    """Rigid bodies on a grid: owner map, runs, links, forces (lattice units).
+    """Rigid bodies on a grid: owner map, runs, link lists, forces (lattice units).
 
-    ``bodies`` (``rigid.Bodies``) is updated in place. ``gravity`` (3,) acts on each particle's
-    excess mass ``(rho_p - rho0) V_p``; the flow's body force density acts on ``V_p``.
+    ``bodies`` (``rigid.Bodies``) is updated in place: centres are wrapped into the periodic box.
+    ``gravity`` (3,) acts on each particle's excess mass ``(rho_p - rho0) V_p``; the flow's body
+    force density acts on ``V_p`` (module docstring). ``force``/``torque`` (N, 3) hold the
+    hydrodynamic force and torque (lab frame, about the centre) of the last step.
     """
 
     def __init__(self, grid, bodies: Bodies, gravity=(0.0, 0.0, 0.0), rho0: float = 1.0):
@@ -1043,12 +1050,12 @@ class ParticleSystem:
         self.e = np.ascontiguousarray(lat.e.astype(np.int64))
         self.w = np.ascontiguousarray(lat.w.astype(np.float64))
         self.opp = np.ascontiguousarray(lat.opp.astype(np.int64))
+        Q = lat.q
         nx, ny, nz = grid.shape
         self.dims = np.array([nx, ny, nz], dtype=np.int64)
         self.az = int(grid.alloc_z)
         self.periodic = np.array(grid.periodic, dtype=np.bool_)
-        pos = grid.positions()
-        self.origin = np.array([p[0] for p in pos], dtype=np.float64)
+        self.origin = np.array([p[0] for p in grid.positions()], dtype=np.float64)
         self.lo = self.origin - 0.5
         self.xmap = _wrap_table(nx, grid.periodic[0])
         self.ymap = _wrap_table(ny, grid.periodic[1])
@@ -1065,6 +1072,10 @@ class ParticleSystem:
             if grid.periodic[d] and n and span.max() > self.dims[d]:
                 raise ValueError(f"a particle's bounding diameter ({2 * rb.max():.3g} nodes) must be below the "
                                  f"periodic length along {'xyz'[d]} ({self.dims[d]} nodes) minus 2")
+        self.fixed_ids = np.flatnonzero(bodies.fixed).astype(np.int64)
+        self.free_ids = np.flatnonzero(~bodies.fixed).astype(np.int64)
+        self.all_ids = np.concatenate([self.fixed_ids, self.free_ids])
+        # runs (current and next)
         self.run_off = np.zeros(n + 1, dtype=np.int64)
         self.run_off[1:] = np.cumsum(span * span)
         ncol = int(self.run_off[-1])
@@ -1074,9 +1085,6 @@ class ParticleSystem:
         self.rect_n = np.zeros((n, 4), np.int64)
         self.z1_n = np.ones(ncol, np.int64)
         self.z2_n = np.zeros(ncol, np.int64)
-        self.fixed_ids = np.flatnonzero(bodies.fixed).astype(np.int64)
-        self.free_ids = np.flatnonzero(~bodies.fixed).astype(np.int64)
-        self.all_ids = np.concatenate([self.fixed_ids, self.free_ids])
         # change buffers of moving particles: a column changes by at most its old + new run
         cap = 2 * (span * span * span)[self.free_ids]
         self.chg_off = np.zeros(len(self.free_ids) + 1, np.int64)
@@ -1095,10 +1103,27 @@ class ParticleSystem:
         self.owner = owner.reshape(-1)
         self.count = np.zeros(size, np.int16)
         self.touched = np.zeros(size, np.bool_)
-        self.acq = np.full(size, -1, np.int64)
-        # dynamics
-        self.g0 = np.zeros((n, 6))
-        self.zmat = np.zeros((n, 6, 6))
+        self.acq = np.full(size, -1, np.int32)
+        # link lists: a lattice line through a convex particle enters it once, so direction i has
+        # at most pi (r_b + 1)^2 |e_i| links (lines per unit area across e_i: |e_i|); padded
+        norms = np.linalg.norm(self.e, axis=1)
+        lcap = np.zeros((n, Q), np.int64)
+        lcap[:, 1:] = (math.pi * (rb[:, None] + 2.0) ** 2 * norms[None, 1:]).astype(np.int64) + 16
+        self.lcap = lcap
+        self.lbase = np.zeros((n, Q), np.int64)
+        flat = np.concatenate([[0], np.cumsum(lcap.reshape(-1))])
+        self.lbase[:] = flat[:-1].reshape(n, Q)
+        total = int(flat[-1])
+        self.lcnt = np.zeros((n, Q), np.int64)
+        self.LX = np.zeros(total, np.int64)
+        self.LS = np.zeros(total, np.int64)
+        self.LM = np.zeros((3, total))
+        self.lerr = np.zeros(1, np.int64)
+        self.nown = np.zeros(n, np.int64)
+        nt = numba.config.NUMBA_NUM_THREADS
+        per_particle = int(lcap.sum(axis=1).max()) if n else 1
+        self.scratch = (np.zeros((nt, per_particle)), np.zeros((nt, 6, 7)))
+        # dynamics and outputs
         self.fext = np.zeros((n, 6))
         self.imp = np.zeros((n, 6))
         self.om = np.zeros((n, 3))
@@ -1107,21 +1132,32 @@ class ParticleSystem:
         self.force_sum = np.zeros((n, 3))
         self.torque_sum = np.zeros((n, 3))
         self.n_sum = np.zeros(n, np.int64)
-        self.node_j = np.zeros(n)
-        self.node_n = np.zeros(n, np.int64)
+        self.exch = np.zeros((n, 3))
+        self.moved = np.zeros(3)
         self.last_cover = (0, 0)
         self._map_all()
-        self._map_fixed_links()
-        self._update_omega()
+        self.om[:] = omega_lab_arrays(bodies.q, bodies.wb)
+        self.n_fluid = int(np.count_nonzero(self.owner == FLUID))
 
-    # -- set-up --------------------------------------------------------------------------------
+    # -- packed arguments of the kernels
+    @property
+    def G(self):
+        return (self.dims, self.az, self.origin, self.periodic, self.xmap, self.ymap, self.zmap, self.e)
+
+    @property
+    def L(self):
+        return (self.lbase, self.lcap, self.lcnt, self.LX, self.LS, self.LM, self.lerr, self.nown)
+
+    def _check_links(self):
+        if self.lerr[0]:
+            raise RuntimeError(f"particle link list overflow ({int(self.lerr[0])} links dropped); please report")
+
     def _runs(self, ids, rect, z1, z2):
         b = self.bodies
         compute_runs(ids, b.kind, b.h, b.x, b.q, self.origin, self.dims, self.periodic, self.run_off, rect, z1, z2)
 
     def _map_all(self):
         b = self.bodies
-        # centres into the periodic box first
         for d in range(3):
             if self.periodic[d]:
                 b.x[:, d] = self.lo[d] + np.mod(b.x[:, d] - self.lo[d], self.dims[d])
@@ -1129,63 +1165,35 @@ class ParticleSystem:
         self.rect_n[:] = self.rect
         self.z1_n[:] = self.z1
         self.z2_n[:] = self.z2
-        mark_initial(self.all_ids, self.rect, self.run_off, self.z1, self.z2, self.xmap, self.ymap, self.zmap,
-                     self.dims, self.az, self.owner, self.count)
-
-    def _map_fixed_links(self):
-        b = self.bodies
-        self.fix_off, self.fix_x, self.fix_s, self.fix_i, self.fix_r = map_fixed_links(
-            self.fixed_ids, b.fixed, self.owner, self.run_off, self.rect, self.z1, self.z2, self.xmap, self.ymap,
-            self.zmap, self.dims, self.az, self.e, self.origin, b.x)
-
-    def _update_omega(self):
-        from .rigid import omega_lab_arrays
-
-        self.om[:] = omega_lab_arrays(self.bodies.q, self.bodies.wb)
+        mark_initial(self.all_ids, self.rect, self.run_off, self.z1, self.z2, self.owner, self.count, b.x, self.G,
+                     self.L)
+        self._check_links()
 
     # -- per step ------------------------------------------------------------------------------
     def fill_fixed(self, f2):
-        if len(self.fixed_ids):
-            fixed_fill(f2, self.owner, self.fix_off, self.fix_x, self.fix_s, self.fix_i, self.fix_r, self.e,
-                       self.opp, self.force, self.torque, self.fixed_ids)
-            _accumulate(self.fixed_ids, self.force, self.torque, self.force_sum, self.torque_sum, self.n_sum)
+        """Bounce-back and force of the fixed particles (``pre``)."""
+        ids = self.fixed_ids
+        if len(ids):
+            fixed_fill(f2, self.owner, ids, self.bodies.x, self.e, self.w, self.opp, self.rho0, self.force,
+                       self.torque, self.exch, self.lbase, self.lcnt, self.LX, self.LS, self.LM)
+            _accumulate(ids, self.force, self.torque, self.force_sum, self.torque_sum, self.n_sum)
 
     def couple_free(self, f2, body_force):
-        """Links -> implicit velocity update -> ghost fill (the ``pre`` work of free particles)."""
+        """Link sums -> implicit velocity update -> ghost fill of the free particles (``pre``)."""
         ids = self.free_ids
         if not len(ids):
             return
         b = self.bodies
-        free_accumulate(f2, self.owner, ids, self.run_off, self.rect, self.z1, self.z2, self.xmap, self.ymap,
-                        self.zmap, self.dims, self.az, self.origin, b.x, self.e, self.w, self.rho0, self.g0, self.zmat)
         fb = np.asarray(body_force, dtype=np.float64)
         self.fext[:, :3] = self.vol[:, None] * (fb[None, :] + (b.mass / self.vol - self.rho0)[:, None] * self.gravity)
-        implicit_update(ids, b.mass, b.inertia, b.q, b.v, b.wb, self.g0, self.zmat, self.fext, self.imp, self.om,
-                        self.force, self.torque)
-        free_fill(f2, self.owner, ids, self.run_off, self.rect, self.z1, self.z2, self.xmap, self.ymap, self.zmap,
-                  self.dims, self.az, self.origin, b.x, b.v, self.om, self.e, self.w, self.opp, self.rho0)
+        couple_free(f2, self.owner, ids, b.x, self.e, self.w, self.opp, self.rho0, b.mass, b.inertia, b.q, b.v,
+                    b.wb, self.fext, self.imp, self.om, self.force, self.torque, self.exch, self.lbase, self.lcnt,
+                    self.LX, self.LS, self.LM, *self.scratch)
         _accumulate(ids, self.force, self.torque, self.force_sum, self.torque_sum, self.n_sum)
 
-    def take_mean_force(self):
-        """Mean hydrodynamic force and torque (lab) on each particle over the steps since the last
-        call, (N, 3) each (the last step's values if no step ran)."""
-        n = self.n_sum[:, None]
-        f = np.where(n > 0, self.force_sum / np.maximum(n, 1), self.force)
-        t = np.where(n > 0, self.torque_sum / np.maximum(n, 1), self.torque)
-        self.force_sum[:] = 0.0
-        self.torque_sum[:] = 0.0
-        self.n_sum[:] = 0
-        return f, t
-
-    def node_flux(self, f2):
-        """Per particle: z-momentum held by its nodes in ``f2`` and their count."""
-        particle_node_flux(f2, self.owner, self.all_ids, self.run_off, self.rect, self.z1, self.z2, self.xmap,
-                           self.ymap, self.zmap, self.dims, self.az, np.ascontiguousarray(self.e[:, 2]),
-                           self.node_j, self.node_n)
-        return self.node_j, self.node_n
-
     def move(self, f2):
-        """Free motion over one step with the new velocities, then remap (``post`` work)."""
+        """Drift of the free particles over one step with their new velocities, then the remap
+        (``post``; ``f2`` holds the post-collision populations of the new time)."""
         ids = self.free_ids
         if not len(ids):
             return
@@ -1194,54 +1202,79 @@ class ParticleSystem:
         self._runs(ids, self.rect_n, self.z1_n, self.z2_n)
         diff_runs(ids, self.run_off, self.rect, self.z1, self.z2, self.rect_n, self.z1_n, self.z2_n, self.xmap,
                   self.ymap, self.zmap, self.dims, self.az, self.chg_off, self.chg_node, self.chg_d, self.chg_n)
-        # the new orientation's lab angular velocity (the drift turned wb with the body)
-        self._update_omega()
+        # the drift turned wb with the body: the lab angular velocity for the surface velocities
+        self.om[:] = omega_lab_arrays(b.q, b.wb)
         self.last_cover = apply_changes(
             ids, self.chg_off, self.chg_node, self.chg_d, self.chg_n, self.all_ids, self.rect_n, self.run_off,
-            self.z1_n, self.z2_n, self.dims, self.az, self.periodic, self.origin, b.x, b.v, self.om, self.owner,
-            self.count, self.touched, self.acq, self.touch_list, self.unc_list, self.unc_old, f2, self.e, self.w,
-            self.opp, self.xmap, self.ymap, self.zmap, self.rho0, self.imp)
-        wrap_positions(ids, b.x, self.lo, self.dims, self.periodic, self.rect_n, self.run_off, self.z1_n, self.z2_n)
+            self.z1_n, self.z2_n, b.x, b.v, self.om, self.owner, self.count, self.touched, self.acq,
+            self.touch_list, self.unc_list, self.unc_old, f2, self.w, self.rho0, self.imp, self.moved, self.G,
+            self.L)
+        self.n_fluid -= self.last_cover[0] - self.last_cover[1]
+        self._check_links()
+        wrap_positions(ids, b.x, self.lo, self.dims, self.periodic, self.rect_n, self.run_off, self.z1_n, self.z2_n,
+                       self.lbase, self.lcnt, self.LM)
         self.rect, self.rect_n = self.rect_n, self.rect
         self.z1, self.z1_n = self.z1_n, self.z1
         self.z2, self.z2_n = self.z2_n, self.z2
 
-    # -- observables ---------------------------------------------------------------------------
+    def take_mean_force(self):
+        """Mean hydrodynamic force and torque (lab) on each particle over the steps since the last
+        call, (N, 3) each (the last step's values where no step ran)."""
+        n = self.n_sum[:, None]
+        f = np.where(n > 0, self.force_sum / np.maximum(n, 1), self.force)
+        t = np.where(n > 0, self.torque_sum / np.maximum(n, 1), self.torque)
+        self.force_sum[:] = 0.0
+        self.torque_sum[:] = 0.0
+        self.n_sum[:] = 0
+        return f, t
+
+    # -- observables and checks ----------------------------------------------------------------
+    def owner_grid(self) -> np.ndarray:
+        """(nx, ny, nz) int32 owner of each node: -2 wall, -1 fluid, k particle (a view)."""
+        nx, ny, nz = self.dims
+        return self.owner.reshape(nx, ny, self.az)[:, :, :nz]
+
     def covered(self) -> np.ndarray:
         """(nx, ny, nz) bool: nodes that belong to a particle."""
-        nx, ny, nz = self.dims
-        return (self.owner.reshape(nx, ny, self.az)[:, :, :nz] >= 0).copy()
+        return self.owner_grid() >= 0
 
     def fluid_mask(self) -> np.ndarray:
         """(nx, ny, nz) bool: fluid nodes (neither wall nor particle)."""
-        nx, ny, nz = self.dims
-        return self.owner.reshape(nx, ny, self.az)[:, :, :nz] == FLUID
+        return self.owner_grid() == FLUID
 
     def fluid_momentum(self, f2) -> np.ndarray:
-        """(mass, px, py, pz) of the fluid nodes in ``f2`` (post-collision populations)."""
+        """(mass, px, py, pz) of the fluid nodes of ``f2`` (post-collision populations)."""
         return _fluid_momentum(f2, self.owner, self.e)
 
     def total_momentum(self, f2) -> np.ndarray:
-        """Fluid + particle momentum (3,), counting the impulses not yet applied to particles."""
+        """Fluid + particle momentum (3,), with the impulses not yet applied to the particles."""
         b = self.bodies
-        p = self.fluid_momentum(f2)[1:].copy()
         free = ~b.fixed
+        p = self.fluid_momentum(f2)[1:].copy()
         p += (b.mass[free, None] * b.v[free]).sum(axis=0)
         p += self.imp[free, :3].sum(axis=0)
         return p
 
     def omega_lab(self) -> np.ndarray:
-        from .rigid import omega_lab_arrays
-
+        """Lab-frame angular velocities (N, 3)."""
         return omega_lab_arrays(self.bodies.q, self.bodies.wb)
 
-
-# ----------------------------------------------------------------------------------------------
-# Effects
+    def links(self, k: int):
+        """Live links of particle ``k`` as arrays ``(fluid node, particle node, direction, lever
+        arm)`` (a copy, for checks and diagnostics)."""
+        xs, ss, ii, rr = [], [], [], []
+        for i in range(1, len(self.w)):
+            sl = slice(self.lbase[k, i], self.lbase[k, i] + self.lcnt[k, i])
+            live = (self.owner[self.LS[sl]] == k) & (self.owner[self.LX[sl]] == FLUID)
+            xs.append(self.LX[sl][live])
+            ss.append(self.LS[sl][live])
+            ii.append(np.full(int(live.sum()), i))
+            rr.append(self.LM[:, sl][:, live].T - self.bodies.x[k])
+        return np.concatenate(xs), np.concatenate(ss), np.concatenate(ii), np.concatenate(rr)
 
 
 class FixedParticles(fx.Effect):
-    """Fixed particles: half-way bounce-back on their precomputed links, force and torque."""
+    """Fixed particles: half-way bounce-back on their links, force and torque."""
 
     name = "particles: fixed obstacles (bounce-back, force)"
     phase = "pre"
@@ -1267,25 +1300,55 @@ class ParticleCoupling(fx.Effect):
 
 
 class ParticleFluxCorrection(fx.Effect):
-    """Flow-rate control with particles: the kernel's flux sum minus the particle nodes' share,
-    plus the particles' volume flux (the mixture's flow rate). Runs before the controller."""
+    """Flow-rate control with particles: replaces the kernel's flux sum (which runs over particle
+    nodes too) by the mixture's, ``sum_fluid (j_z - F_z/2) + sum_k n_k U_z,k``.
+
+    The fluid's z-momentum ``P`` (post-collision, fluid nodes) is kept by exact bookkeeping rather
+    than summed over the nodes: per step ``P += F_z n_fluid - (exchange through wall links) -
+    (exchange through particle links)``, and each move subtracts the momentum of covered nodes and
+    adds that of uncovered ones. The wall exchange is summed from each wall link's two slots
+    (``wall_exchange``), so it holds for any wall rule. ``P`` is recomputed from the populations
+    every ``resync_every`` steps against round-off. Runs after the sweep, before the controller."""
 
     name = "particles: flow-rate flux correction"
     phase = "post"
 
-    def __init__(self, system: ParticleSystem):
+    def __init__(self, system: ParticleSystem, wall_links=(), resync_every: int = 1000):
         self.system = system
+        parts = [k for k in wall_links if len(k)]
+        ez = system.e[:, 2]
+        if parts:
+            cat = {a: np.concatenate([getattr(k, a) for k in parts]) for a in ("fluid", "solid", "i", "opp")}
+        else:
+            cat = {a: np.zeros(0, np.int64) for a in ("fluid", "solid", "i", "opp")}
+        sel = ez[cat["i"]] != 0
+        self.fluid, self.solid = cat["fluid"][sel], cat["solid"][sel]
+        self.i, self.opp = cat["i"][sel], cat["opp"][sel]
+        self.ez = ez[self.i].astype(np.float64)
+        self.resync_every = int(resync_every)
+        self.p_fluid = None
+        self.steps = 0
 
     def __call__(self, sim) -> None:
         s = self.system
-        j, n = s.node_flux(sim.f_next.reshape(sim.lattice.q, -1))
-        # kernel summed (streamed j_z + F_z/2) = (post-collision j_z - F_z/2) per node
+        f2 = sim.f2  # populations the sweep read, ghost slots included
+        if self.p_fluid is None:
+            self.p_fluid = float(s.fluid_momentum(f2)[3])
+            s.moved[:] = 0.0
+        self.p_fluid -= s.moved[2]  # the previous move's covered and uncovered nodes
+        s.moved[:] = 0.0
         fz = float(sim.force[2])
-        sim.last_flux += -(j.sum() - 0.5 * fz * n.sum()) + float(np.dot(n, s.bodies.v[:, 2]))
+        e_wall = wall_exchange(f2, s.owner, self.fluid, self.solid, self.i, self.opp, self.ez)
+        self.p_fluid += fz * s.n_fluid - e_wall - float(s.exch[:, 2].sum())
+        self.steps += 1
+        if self.steps % self.resync_every == 0:
+            self.p_fluid = float(s.fluid_momentum(sim.f_next.reshape(sim.lattice.q, -1))[3])
+        # per fluid node the kernel sums the streamed j_z + F_z/2 = post-collision j_z - F_z/2
+        sim.last_flux = self.p_fluid - 0.5 * fz * s.n_fluid + float(np.dot(s.nown, s.bodies.v[:, 2]))
 
 
 class ParticleMotion(fx.Effect):
-    """Rigid-body drift (Eqs. (13)-(15)) of the free particles and the remap with the momentum of
+    """Rigid-body drift of the free particles (Eqs. (13)-(15)) and the remap, with the momentum of
     covered and uncovered nodes."""
 
     name = "particles: motion + remap (cover/uncover)"
@@ -1299,8 +1362,8 @@ class ParticleMotion(fx.Effect):
 
 
 class BouzidiParticleGuard(fx.Effect):
-    """With interpolated walls: a wall link whose second fluid node (x - e_i) is covered by a
-    particle falls back to plain bounce-back (its populations are not fluid)."""
+    """With interpolated walls: a wall link whose second fluid node (``x - e_i``) belongs to a
+    particle falls back to plain bounce-back (that node holds no fluid)."""
 
     name = "particles: interpolated-wall guard"
     phase = "pre"
@@ -1325,10 +1388,10 @@ def _bouzidi_guard(f2, owner, fluid, fluid2, solid, i, opp):
             f2[opp[k], solid[k]] = f2[i[k], fluid[k]]
 
 
-def particle_effects(system: ParticleSystem, flux_control: bool = False, bouzidi_links=None):
+def particle_effects(system: ParticleSystem, flux_control: bool = False, bouzidi_links=None, wall_links=()):
     """The effects a particle system needs, and nothing else: ``(pre, post_before_control,
-    post_after_control)``. The flux correction must run after the sweep and before the flow-rate
-    controller; the motion changes the owner map, so it comes after the correction."""
+    post_after_control)``. The flux correction runs after the sweep and before the flow-rate
+    controller; the motion changes the owner map, so it runs after the correction."""
     pre: list[fx.Effect] = []
     if bouzidi_links is not None and len(bouzidi_links) and system.n:
         pre.append(BouzidiParticleGuard(system, bouzidi_links))
@@ -1336,6 +1399,6 @@ def particle_effects(system: ParticleSystem, flux_control: bool = False, bouzidi
         pre.append(FixedParticles(system))
     if len(system.free_ids):
         pre.append(ParticleCoupling(system))
-    before = [ParticleFluxCorrection(system)] if flux_control and system.n else []
+    before = [ParticleFluxCorrection(system, wall_links)] if flux_control and system.n else []
     after = [ParticleMotion(system)] if len(system.free_ids) else []
     return pre, before, after

@@ -177,6 +177,66 @@ class Outputs(_Model):
     flow_rate: bool = Field(True, description="Flow-rate time series.")
 
 
+ShapeName = Literal["sphere", "cylinder", "cube"]
+#: size keys each shape needs (others must be absent)
+SHAPE_SIZES = {"sphere": ("diameter_mm",), "cylinder": ("diameter_mm", "length_mm"), "cube": ("edge_mm",)}
+SIZE_KEYS = ("diameter_mm", "length_mm", "edge_mm")
+
+
+class ParticleBody(_Model):
+    """One particle placed explicitly. Sizes: sphere `diameter_mm`; cylinder `diameter_mm` and
+    `length_mm` (axis = body z); cube `edge_mm`."""
+
+    shape: ShapeName = Field(description="`sphere`, `cylinder` (axis along the body z axis) or `cube`.")
+    diameter_mm: Optional[float] = Field(None, gt=0, description="Sphere and cylinder: diameter in mm.")
+    length_mm: Optional[float] = Field(None, gt=0, description="Cylinder: length along its axis in mm.")
+    edge_mm: Optional[float] = Field(None, gt=0, description="Cube: edge length in mm.")
+    position_mm: Vec3 = Field(
+        description="Centre of mass [x, y, z] in mm, lab frame: pipe axis at x = y = 0, z from 0 to the length "
+        "(periodic; any z is wrapped); box from 0 to its size on each axis."
+    )
+    orientation: tuple[float, float, float, float] = Field(
+        (1.0, 0.0, 0.0, 0.0),
+        description="Unit quaternion [w, x, y, z] rotating the body frame to the lab frame (normalised on load); "
+        "the identity puts a cylinder's axis along z.",
+    )
+    velocity_m_s: Vec3 = Field((0.0, 0.0, 0.0), description="Initial velocity [vx, vy, vz] in m/s.")
+    angular_velocity_rad_s: Vec3 = Field((0.0, 0.0, 0.0), description="Initial angular velocity in rad/s, lab frame.")
+    fixed: bool = Field(False, description="Fixed particles never move (static obstacles; their force is still reported).")
+    density_ratio: float = Field(1.0, gt=0, description="Particle density / fluid density (1 = neutrally buoyant, the paper's).")
+
+
+class RandomParticles(_Model):
+    """A group of identical particles at uniformly random positions and orientations, placed by
+    random sequential addition of non-overlapping bounding spheres (dilute suspensions only; dense
+    packings are `lbmpipe.packing`'s job). Give `count` or `concentration`."""
+
+    shape: ShapeName = Field(description="`sphere`, `cylinder` or `cube`.")
+    diameter_mm: Optional[float] = Field(None, gt=0, description="Sphere and cylinder: diameter in mm.")
+    length_mm: Optional[float] = Field(None, gt=0, description="Cylinder: length in mm.")
+    edge_mm: Optional[float] = Field(None, gt=0, description="Cube: edge length in mm.")
+    count: Optional[int] = Field(None, ge=1, description="Number of particles.")
+    concentration: Optional[float] = Field(
+        None, gt=0, lt=1, description="Solid volume fraction of the domain; the count is rounded to the nearest integer (at least 1)."
+    )
+    seed: int = Field(0, ge=0, description="Random seed (placement and orientations).")
+    fixed: bool = Field(False, description="Fixed (static) or free particles.")
+    density_ratio: float = Field(1.0, gt=0, description="Particle density / fluid density.")
+
+
+class Particles(_Model):
+    """Rigid particles coupled to the fluid (Ladd's moving bounce-back, Eqs. (8)-(12)); see
+    `lbmpipe/coupling.py`. Bodies are numbered in order: `bodies` first, then each `random` group."""
+
+    bodies: list[ParticleBody] = Field(default_factory=list, description="Explicitly placed particles.")
+    random: list[RandomParticles] = Field(default_factory=list, description="Randomly placed groups of particles.")
+    gravity_m_s2: Vec3 = Field(
+        (0.0, 0.0, 0.0),
+        description="Gravity [gx, gy, gz] in m/s^2 acting on the particles' excess mass (rho_p - rho_f) V (the fluid carries "
+        "no gravity; buoyancy is included this way).",
+    )
+
+
 class Scene(_Model):
     """A complete simulation scene, in physical units."""
 
@@ -188,6 +248,7 @@ class Scene(_Model):
     numerics: Numerics = Field(default_factory=Numerics, description="Discretisation choices.")
     run: Run = Field(default_factory=Run, description="Run length and sampling.")
     outputs: Outputs = Field(default_factory=Outputs, description="Recorded outputs.")
+    particles: Optional[Particles] = Field(None, description="Rigid particles (optional): explicit and random placements.")
 
     @classmethod
     def model_validate(cls, obj: Any, *args: Any, **kwargs: Any) -> "Scene":
@@ -329,9 +390,62 @@ def _cross_field_errors(s: Scene) -> list[SceneError]:
     if run.sample_interval_s > run.duration_s:
         err("run.sample_interval_s", f"sample interval {_fmt(run.sample_interval_s)} s is longer than run.duration_s = "
             f"{_fmt(run.duration_s)} s", "lower run.sample_interval_s")
+    if s.particles is not None:
+        errs.extend(_particle_errors(s))
     if run.sample_interval_s < num.dt_s * (1 - MULTIPLE_RTOL):
         err("run.sample_interval_s", f"sample interval {_fmt(run.sample_interval_s)} s is shorter than one time step "
             f"(numerics.dt_s = {_fmt(num.dt_s)} s)", f"set run.sample_interval_s to a multiple of {_fmt(num.dt_s)}")
+    return errs
+
+
+def _particle_errors(s: Scene) -> list[SceneError]:
+    """Rules of the particles section: sizes per shape, count or concentration, centres inside the
+    domain, particles smaller than the periodic lengths."""
+    errs: list[SceneError] = []
+    d, dx = s.domain, s.numerics.dx_mm
+    groups = [(f"particles.bodies[{i}]", b) for i, b in enumerate(s.particles.bodies)]
+    groups += [(f"particles.random[{i}]", g) for i, g in enumerate(s.particles.random)]
+    if d.kind == "pipe":
+        extents = (d.diameter_mm, d.diameter_mm, d.length_mm)
+        periodic = (False, False, True)
+    else:
+        extents = tuple(d.size_mm) if d.size_mm is not None else (None, None, None)
+        periodic = tuple(getattr(d.walls, a) == "periodic" for a in AXES)
+    for path, p in groups:
+        need = SHAPE_SIZES[p.shape]
+        for key in need:
+            if getattr(p, key) is None:
+                errs.append(SceneError(f"{path}.{key}", f"a {p.shape} needs {key}", f"add {key}: <mm>"))
+        for key in SIZE_KEYS:
+            if key not in need and getattr(p, key) is not None:
+                errs.append(SceneError(f"{path}.{key}", f"a {p.shape} takes no {key} (it needs {', '.join(need)})",
+                                       f"remove {key}"))
+        if any(getattr(p, k) is None for k in need):
+            continue
+        h = {"sphere": lambda: (p.diameter_mm / 2,) * 3, "cylinder": lambda: (p.diameter_mm / 2, p.diameter_mm / 2, p.length_mm / 2),
+             "cube": lambda: (p.edge_mm / 2,) * 3}[p.shape]()
+        rb = math.sqrt(h[0] ** 2 + h[2] ** 2) if p.shape == "cylinder" else (h[0] if p.shape == "sphere" else math.sqrt(3) * h[0])
+        for a, axis in enumerate(AXES):
+            if periodic[a] and extents[a] is not None and 2 * rb + 2 * dx > extents[a]:
+                errs.append(SceneError(path, f"the {p.shape}'s bounding diameter {_fmt(2 * rb)} mm plus two nodes exceeds the "
+                                       f"periodic length along {axis} ({_fmt(extents[a])} mm)",
+                                       f"make the domain longer than {_fmt(2 * rb + 2 * dx)} mm along {axis} or the particle smaller"))
+        if isinstance(p, RandomParticles):
+            if (p.count is None) == (p.concentration is None):
+                errs.append(SceneError(f"{path}.count", "give exactly one of count and concentration",
+                                       "set count: <n> or concentration: <volume fraction>"))
+        else:
+            if all(c == 0.0 for c in p.orientation):
+                errs.append(SceneError(f"{path}.orientation", "the quaternion is zero", "give a unit quaternion [w, x, y, z], e.g. [1, 0, 0, 0]"))
+            x, y, z = p.position_mm
+            if d.kind == "pipe" and d.diameter_mm is not None and math.hypot(x, y) >= d.diameter_mm / 2:
+                errs.append(SceneError(f"{path}.position_mm", f"the centre ({_fmt(x)}, {_fmt(y)}) mm is outside the pipe of radius "
+                                       f"{_fmt(d.diameter_mm / 2)} mm (axis at x = y = 0)", "move the centre inside the pipe"))
+            if d.kind == "box" and d.size_mm is not None:
+                for a, axis in enumerate(AXES):
+                    if not periodic[a] and not 0.0 < p.position_mm[a] < extents[a]:
+                        errs.append(SceneError(f"{path}.position_mm", f"the centre's {axis} = {_fmt(p.position_mm[a])} mm is outside the "
+                                               f"walled box (0 to {_fmt(extents[a])} mm)", f"move it inside (0, {_fmt(extents[a])})"))
     return errs
 
 
@@ -540,6 +654,12 @@ satisfy these rules:
   `acceleration_m_s2` (in a pipe along z only); each of these two keys only with its own kind.
 - `initial.velocity: parabolic` only for a pipe driven by `flow_rate` or `body_force`.
 - `run.spinup_s < run.duration_s`; `numerics.dt_s <= run.sample_interval_s <= run.duration_s`.
+- `particles`: each body or group gives exactly the sizes of its shape (sphere `diameter_mm`;
+  cylinder `diameter_mm` and `length_mm`; cube `edge_mm`); a random group gives exactly one of
+  `count` and `concentration`; an explicit body's centre lies inside the pipe (or inside the box
+  along walled axes); a particle's bounding diameter plus two nodes fits in every periodic length.
+  Random placement that cannot fit the requested number of non-overlapping bounding spheres fails
+  at run time with the number it reached.
 
 ## Derived lattice parameters (`lbmpipe.units.derive`)
 
@@ -565,7 +685,8 @@ Lattice units have `dx = dt = 1` and density 1 = `fluid.density_kg_m3`.
 def describe_fields() -> str:
     """Markdown reference of every scene field (the content of docs/scene.md)."""
     sections = [("(top level)", Scene)] + [(key, _model_at((key,))) for key in Scene.model_fields if _model_at((key,))]
-    sections += [("domain.walls", Walls), ("domain.moving_walls[i]", MovingWall)]
+    sections += [("domain.walls", Walls), ("domain.moving_walls[i]", MovingWall),
+                 ("particles.bodies[i]", ParticleBody), ("particles.random[i]", RandomParticles)]
     lines = [_DOC_HEAD]
     for where, model in sections:
         doc = " ".join((model.__doc__ or "").split())

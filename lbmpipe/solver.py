@@ -54,6 +54,8 @@ class Simulation:
         # A few chunks per thread balance the columns across cores without per-column overhead.
         self.n_chunks = max(1, min(len(grid.cols_x), 4 * numba.get_num_threads()))
         self.set_equilibrium(1.0, (0.0, 0.0, 0.0))
+        self.particles = None  # coupling.ParticleSystem when the scene has particles
+        self.particle_static: list[dict] = []
 
     @property
     def f2(self) -> np.ndarray:
@@ -88,8 +90,12 @@ class Simulation:
         """(rho, ux, uy, uz) on the grid (lattice units); meaningless at solid nodes."""
         return obs.moments(self.f, self.lattice, self.grid.shape, self.force)
 
+    def fluid_mask(self) -> np.ndarray:
+        """(nx, ny, nz) bool: fluid nodes now (neither wall nor particle)."""
+        return self.grid.fluid if self.particles is None else self.particles.fluid_mask()
+
     def mass(self) -> float:
-        return obs.total_mass(self.f, self.grid.fluid)
+        return obs.total_mass(self.f, self.fluid_mask())
 
     def effect(self, cls):
         for e in self.effects:
@@ -107,19 +113,49 @@ def grid_from_scene(scene, params) -> bnd.Grid:
     return bnd.box_grid(lat, (nx, ny, nz), (w.x == "wall", w.y == "wall", w.z == "wall"))
 
 
+def particle_system_from_scene(scene, params, grid):
+    """The scene's particles on ``grid`` as a ``coupling.ParticleSystem`` and their static records,
+    or ``(None, [])`` when the scene has none."""
+    if scene.particles is None or not (scene.particles.bodies or scene.particles.random):
+        return None, []
+    from .coupling import ParticleSystem
+    from .particles import bodies_from_scene
+
+    bodies, static = bodies_from_scene(scene, params)
+    gravity = [params.units.acceleration(g) for g in scene.particles.gravity_m_s2]
+    return ParticleSystem(grid, bodies, gravity=gravity), static
+
+
 def simulation_from_scene(scene, params) -> Simulation:
-    """Assemble the simulation a scene declares: exactly its effects, and its initial state."""
+    """Assemble the simulation a scene declares: exactly its effects, and its initial state.
+
+    With particles, the step is: wall fills, particle fills (``coupling``), sweep, then the
+    flow-rate flux correction, the controller and the particle motion (in that order: the
+    correction needs the owner map of the sweep, the motion changes it)."""
     grid = grid_from_scene(scene, params)
     num = scene.numerics
-    extra = fx.wall_effects(grid, num.wall, dict(params.wall_velocities_lu))
-    force = np.array(params.accel_lu, dtype=np.float64)  # force density = rho_0 g, rho_0 = 1
+    walls = fx.wall_effects(grid, num.wall, dict(params.wall_velocities_lu))
+    extra = list(walls)
+    system, static = particle_system_from_scene(scene, params, grid)
     flux = scene.driving.kind == "flow_rate"
+    after: list[fx.Effect] = []
+    if system is not None:
+        from .coupling import particle_effects
+
+        bouzidi = [e.links for e in walls if isinstance(e, fx.WallBouzidi)]
+        pre, before, after = particle_effects(system, flux_control=flux, bouzidi_links=bouzidi[0] if bouzidi else None,
+                                              wall_links=[e.links for e in walls])
+        extra += pre + before
+    force = np.array(params.accel_lu, dtype=np.float64)  # force density = rho_0 g, rho_0 = 1
     if flux:
         ctl = fx.FlowRateControl(params.flow_rate_lu, grid.radius, params.nu_lu, grid.shape[2])
         extra.append(ctl)
         force = np.array([0.0, 0.0, ctl.f_ref])
+    extra += after
     sim = Simulation(grid, collision=num.collision, omega=params.omega, omega_minus=params.omega_minus,
                      precision=num.precision, force=force, flux=flux, extra_effects=extra)
+    sim.particles = system
+    sim.particle_static = static
     if scene.initial.velocity == "parabolic" and grid.kind == "pipe":
         x, y, _ = grid.positions()
         r = np.sqrt(x[:, None] ** 2 + y[None, :] ** 2)
@@ -156,7 +192,10 @@ def run_scene(scene, params, out_dir: Path, progress: bool = True, max_steps: in
     """Run ``scene`` and write its outputs into ``out_dir``; returns the summary (also written).
 
     Outputs (physical units; documented in the README): ``summary.json``, ``flow_rate.csv`` and,
-    for a pipe, ``profile.csv`` (time-averaged axial velocity against radius).
+    for a pipe, ``profile.csv`` (time-averaged axial velocity against radius). With particles,
+    also ``particles.parquet`` (state per particle per sample) and ``particles_static.csv`` (shape
+    and size per particle); particle nodes are excluded from the fluid observables, the flow rate
+    is the mixture's (fluid plus particle volume flux) and the profile the fluid's.
     """
     from . import outputs
 
@@ -171,7 +210,15 @@ def run_scene(scene, params, out_dir: Path, progress: bool = True, max_steps: in
     every = params.sample_every
     mass0 = sim.mass()
     uz_sum = np.zeros(grid.shape)
+    uz_cnt = np.zeros(grid.shape)
     n_avg = 0
+    ps = sim.particles
+    recorder = None
+    if ps is not None:
+        from . import particles as particles_out
+
+        recorder = particles_out.ParticleRecorder(ps, units)
+        recorder.sample(0)
     series = []
     status = "completed"
     message = ""
@@ -187,14 +234,22 @@ def run_scene(scene, params, out_dir: Path, progress: bool = True, max_steps: in
             bar.update(chunk)
             if sim.step_count % every == 0 or sim.step_count == n_steps:
                 rho, ux, uy, uz = sim.moments()
-                fluid = grid.fluid
+                fluid = sim.fluid_mask()
                 if not np.isfinite(rho[fluid]).all():
                     status, message = "unstable", f"non-finite density at step {sim.step_count}"
                     break
-                q_lu = float(uz[fluid].sum() / grid.shape[2])
+                jz = float(uz[fluid].sum())
+                if ps is not None:
+                    if not np.isfinite(ps.bodies.v).all():
+                        status, message = "unstable", f"non-finite particle velocity at step {sim.step_count}"
+                        break
+                    jz += float(np.dot(ps.nown, ps.bodies.v[:, 2]))  # mixture: particle volume flux
+                    recorder.sample(sim.step_count)
+                q_lu = jz / grid.shape[2]
                 series.append((sim.step_count, q_lu, float(sim.force[2]), float(np.abs(rho[fluid] - 1).max())))
                 if sim.step_count > spinup:
                     uz_sum += np.where(fluid, uz, 0.0)
+                    uz_cnt += fluid
                     n_avg += 1
                 elapsed = time.perf_counter() - t0
                 bar.set_postfix_str(outputs.progress_text(sim.step_count, units.dt_s, grid.n_fluid, elapsed))
@@ -204,6 +259,7 @@ def run_scene(scene, params, out_dir: Path, progress: bool = True, max_steps: in
     wall = time.perf_counter() - t0
     bar.close()
     mass1 = sim.mass()
+    files = {}
     summary = {
         "status": status,
         "message": message,
@@ -219,11 +275,22 @@ def run_scene(scene, params, out_dir: Path, progress: bool = True, max_steps: in
         "effects": {e.name: sim.timers[e.name] for e in sim.effects},
         "samples_averaged": n_avg,
     }
-    files = {}
     files["flow_rate.csv"] = outputs.write_flow_rate(out_dir, series, units, scene)
+    if ps is not None:
+        summary["particles"] = {
+            "count": ps.n, "fixed": int(len(ps.fixed_ids)),
+            "volume_fraction": float(ps.vol.sum() / max(float(np.count_nonzero(grid.fluid)), 1.0)),
+            "links": int(ps.lcnt.sum()),
+        }
+        files[particles_out.write_static(out_dir, sim.particle_static)] = True
+        files[recorder.write(out_dir)] = True
     if grid.kind == "pipe" and n_avg > 0:
         x, y, _ = grid.positions()
-        r, u, count = obs.radial_profile(uz_sum / n_avg, grid.fluid, x, y, grid.radius)
+        # time-weighted fluid mean per column (nodes count only while they are fluid), spread
+        # along z so that radial_profile's column average returns it
+        col = uz_sum.sum(axis=2) / np.maximum(uz_cnt.sum(axis=2), 1.0)
+        r, u, count = obs.radial_profile(np.repeat(col[:, :, None], grid.shape[2], axis=2), grid.fluid, x, y,
+                                         grid.radius)
         u_ref = obs.poiseuille_pipe(r, grid.radius, 2.0 * (params.u_mean_lu if params.flow_rate_lu else 0.0))
         if params.flow_rate_lu:
             summary["profile_error_rel_l2"] = obs.relative_l2(u, u_ref)

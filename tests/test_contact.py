@@ -1,0 +1,250 @@
+"""Contact geometry (lbmpipe.contact): GJK/EPA gaps, normals and contact points against exact
+values, the pipe and planar walls, and the cell-list broad phase."""
+
+import math
+
+import numpy as np
+import pytest
+from scipy.optimize import minimize
+
+from lbmpipe.contact import candidate_pairs, contact_pair, contact_pipe, contact_plane
+from lbmpipe.rigid import quat_from_axis_angle, quat_to_matrix, random_quaternions
+from lbmpipe.shapes import CUBE, CYLINDER, SPHERE, support_body
+
+IDENTITY = np.array([1.0, 0.0, 0.0, 0.0])
+
+
+def _rot(axis, angle):
+    return quat_from_axis_angle(np.asarray(axis, dtype=np.float64), float(angle))
+
+
+def _apply(q, v):
+    return quat_to_matrix(q) @ np.asarray(v, dtype=np.float64)
+
+
+# ------------------------------------------------------------------------------------------------
+# exact pair geometry
+
+
+@pytest.mark.parametrize("distance", [3.7, 2.95, 2.5])
+def test_sphere_sphere_gap_normal_and_contact_point_are_exact(distance):
+    rng = np.random.default_rng(0)
+    u = rng.standard_normal(3)
+    u /= np.linalg.norm(u)
+    x1 = np.array([0.3, -1.0, 2.0])
+    x2 = x1 + distance * u
+    g, n, c = contact_pair(SPHERE, [1.0] * 3, x1, IDENTITY, SPHERE, [2.0] * 3, x2, IDENTITY)
+    assert g == pytest.approx(distance - 3.0, abs=1e-12)
+    np.testing.assert_allclose(n, u, atol=1e-12)
+    # midway between the two surfaces along the centre line
+    np.testing.assert_allclose(c, x1 + u * (1.0 + 0.5 * (distance - 3.0)), atol=1e-12)
+
+
+@pytest.mark.parametrize("dx", [2.4, 2.0001, 1.97, 1.8])
+def test_cube_cube_face_to_face_gap_normal_and_patch_centroid_are_exact(dx):
+    # two unit-half-edge cubes, faces parallel, laterally offset; any common rotation of the pair
+    # must give the same answer rotated
+    q = _rot([0.3, -0.5, 0.8], 1.1)
+    off = np.array([dx, 0.6, 0.2])
+    x1 = np.array([1.0, 2.0, 3.0])
+    x2 = x1 + _apply(q, off)
+    g, n, c = contact_pair(CUBE, [1.0] * 3, x1, q, CUBE, [1.0] * 3, x2, q)
+    assert g == pytest.approx(dx - 2.0, abs=1e-9)
+    np.testing.assert_allclose(n, _apply(q, [1.0, 0.0, 0.0]), atol=1e-9)
+    # patch: y in [-0.4, 1], z in [-0.8, 1] -> centroid (0.3, 0.1); x midway between the faces
+    np.testing.assert_allclose(c, x1 + _apply(q, [1.0 + 0.5 * (dx - 2.0), 0.3, 0.1]), atol=1e-9)
+
+
+@pytest.mark.parametrize("d_perp", [3.1, 2.0, 1.93])
+def test_parallel_cylinders_side_by_side_gap_is_centre_distance_minus_diameter(d_perp):
+    q = _rot([1.0, 2.0, -0.5], 0.7)
+    x1 = np.array([0.0, 0.0, 0.0])
+    # radius 1, half-length 2; axial offset 1.0 so that the side lines overlap over length 3
+    x2 = x1 + _apply(q, [d_perp, 0.0, 1.0])
+    g, n, c = contact_pair(CYLINDER, [1.0, 1.0, 2.0], x1, q, CYLINDER, [1.0, 1.0, 2.0], x2, q)
+    assert g == pytest.approx(d_perp - 2.0, abs=2e-6)
+    np.testing.assert_allclose(n, _apply(q, [1.0, 0.0, 0.0]), atol=2e-3)
+    # contact line from z = -1 to z = 2 (body frame of 1): its middle
+    np.testing.assert_allclose(c, _apply(q, [1.0 + 0.5 * (d_perp - 2.0), 0.0, 0.5]), atol=2e-3)
+
+
+@pytest.mark.parametrize("dz", [4.5, 4.0, 3.9])
+def test_coaxial_cylinders_end_to_end_gap_is_centre_distance_minus_length(dz):
+    q = _rot([0.2, 1.0, 0.1], 2.0)
+    x1 = np.array([5.0, -1.0, 0.5])
+    x2 = x1 + _apply(q, [0.3, -0.2, dz])
+    g, n, c = contact_pair(CYLINDER, [1.0, 1.0, 2.0], x1, q, CYLINDER, [1.0, 1.0, 2.0], x2, q)
+    assert g == pytest.approx(dz - 4.0, abs=1e-9)
+    np.testing.assert_allclose(n, _apply(q, [0.0, 0.0, 1.0]), atol=1e-9)
+    # the two caps overlap in a lens centred on the midpoint of the two axes
+    np.testing.assert_allclose(c, x1 + _apply(q, [0.15, -0.1, 2.0 + 0.5 * (dz - 4.0)]), atol=1e-6)
+
+
+def test_swapping_the_bodies_flips_the_normal_and_keeps_gap_and_point():
+    rng = np.random.default_rng(3)
+    q = random_quaternions(2, rng)
+    for x2 in ([2.2, 0.5, 0.4], [1.6, 0.3, 0.2]):
+        a = contact_pair(CUBE, [1.0, 1.0, 1.0], [0, 0, 0], q[0], CYLINDER, [0.8, 0.8, 1.5], x2, q[1])
+        b = contact_pair(CYLINDER, [0.8, 0.8, 1.5], x2, q[1], CUBE, [1.0, 1.0, 1.0], [0, 0, 0], q[0])
+        assert a[0] == pytest.approx(b[0], abs=1e-7)
+        np.testing.assert_allclose(a[1], -b[1], atol=1e-4)
+
+
+def _support_value(kind, h, x, q, n):
+    out = np.empty(3)
+    R = quat_to_matrix(q)
+    support_body(kind, np.asarray(h, dtype=np.float64), R.T @ n, out)
+    return float(n @ (np.asarray(x) + R @ out))
+
+
+def _separating_axis_gap(kind1, h1, x1, q1, kind2, h2, x2, q2):
+    """max over unit n of [min_B n.y - max_A n.y] = -(h_A(n) + h_B(-n)): the signed gap of two
+    convex bodies (distance if apart, minus the penetration depth if overlapping), computed
+    from the support functions alone, without GJK/EPA."""
+
+    def f(angles):
+        t, p = angles
+        n = np.array([math.sin(t) * math.cos(p), math.sin(t) * math.sin(p), math.cos(t)])
+        return _support_value(kind1, h1, x1, q1, n) + _support_value(kind2, h2, x2, q2, -n)
+
+    m = 600
+    i = np.arange(m) + 0.5
+    th = np.arccos(1.0 - 2.0 * i / m)
+    ph = math.pi * (1.0 + 5.0**0.5) * i
+    vals = np.array([f((a, b)) for a, b in zip(th, ph)])
+    best = np.inf
+    for k in np.argsort(vals)[:4]:
+        r = minimize(f, [th[k], ph[k]], method="Nelder-Mead", options=dict(xatol=1e-11, fatol=1e-13, maxiter=3000))
+        best = min(best, r.fun)
+    return -best
+
+
+def test_signed_gap_and_normal_match_the_separating_axis_maximum_for_random_pairs():
+    rng = np.random.default_rng(11)
+    shapes = [(SPHERE, [1.0, 1.0, 1.0]), (CYLINDER, [1.0, 1.0, 2.0]), (CUBE, [1.0, 1.0, 1.0]), (CYLINDER, [2.0, 2.0, 0.7])]
+    n_overlap = 0
+    for _ in range(24):
+        k1, h1 = shapes[rng.integers(4)]
+        k2, h2 = shapes[rng.integers(4)]
+        q = random_quaternions(2, rng)
+        d = rng.standard_normal(3)
+        x1 = np.zeros(3)
+        x2 = d / np.linalg.norm(d) * rng.uniform(1.8, 4.0)
+        g, n, _ = contact_pair(k1, h1, x1, q[0], k2, h2, x2, q[1])
+        ref = _separating_axis_gap(k1, h1, x1, q[0], k2, h2, x2, q[1])
+        assert g == pytest.approx(ref, abs=1e-5)
+        # the normal attains the maximum: it is the separating (or minimum-translation) axis
+        assert -(_support_value(k1, h1, x1, q[0], n) + _support_value(k2, h2, x2, q[1], -n)) == pytest.approx(g, abs=1e-5)
+        n_overlap += g < 0
+    assert 3 <= n_overlap <= 21  # both regimes were exercised
+
+
+# ------------------------------------------------------------------------------------------------
+# walls
+
+
+def test_pipe_wall_gap_is_radius_minus_farthest_vertex_for_random_cubes():
+    rng = np.random.default_rng(5)
+    h = np.array([1.0, 1.5, 0.5])
+    signs = np.array([[a, b, c] for a in (-1, 1) for b in (-1, 1) for c in (-1, 1)], dtype=float)
+    for q in random_quaternions(20, rng):
+        x = np.array([rng.uniform(-3, 3), rng.uniform(-3, 3), 1.0])
+        g, n, c = contact_pipe(CUBE, h, x, q, 6.0, center=(0.5, -0.5))
+        verts = x + (quat_to_matrix(q) @ (signs * h).T).T
+        rho = np.hypot(verts[:, 0] - 0.5, verts[:, 1] + 0.5)
+        assert g == pytest.approx(6.0 - rho.max(), abs=1e-12)
+        assert n[2] == 0.0 and np.linalg.norm(n) == pytest.approx(1.0)
+
+
+def test_pipe_wall_gap_is_radius_minus_farthest_rim_point_for_random_cylinders():
+    rng = np.random.default_rng(6)
+    h = np.array([1.2, 1.2, 2.5])
+    t = np.linspace(0.0, 2.0 * np.pi, 200001)
+    for q in random_quaternions(20, rng):
+        x = np.array([rng.uniform(-2, 2), rng.uniform(-2, 2), -3.0])
+        g, n, c = contact_pipe(CYLINDER, h, x, q, 7.0)
+        R = quat_to_matrix(q)
+        best = 0.0
+        for s in (-1.0, 1.0):
+            pts = x + s * h[2] * R[:, 2] + h[0] * (np.outer(np.cos(t), R[:, 0]) + np.outer(np.sin(t), R[:, 1]))
+            best = max(best, np.hypot(pts[:, 0], pts[:, 1]).max())
+        assert g == pytest.approx(7.0 - best, abs=1e-9)
+
+
+def test_flat_face_or_side_against_the_pipe_wall_gets_a_torque_free_contact():
+    # a cube face parallel to the wall touches along two edges; a cylinder lying along the pipe
+    # touches along a line; in both cases the contact normal passes through the centre
+    for kind, h, q, x in [
+        (CUBE, [1.0, 1.0, 1.0], _rot([0, 0, 1], 0.3), None),
+        (CYLINDER, [1.0, 1.0, 3.0], IDENTITY, None),
+        (CYLINDER, [1.0, 1.0, 3.0], _rot([0, 1, 0], math.pi / 2), None),
+    ]:
+        ang = 0.3
+        R = quat_to_matrix(q)
+        radial = np.array([math.cos(ang), math.sin(ang), 0.0])
+        if kind == CUBE:
+            x = 3.5 * radial
+        elif abs(R[2, 2]) > 0.5:
+            x = 4.0 * radial
+        else:
+            x = 1.2 * np.array([1.0, 0.0, 0.0])
+            radial = np.array([1.0, 0.0, 0.0])
+        g, n, c = contact_pipe(kind, h, x, q, 5.0)
+        np.testing.assert_allclose(n, radial, atol=1e-9)
+        lever = c - x
+        assert np.linalg.norm(np.cross(lever, n)) < 1e-9
+
+
+def test_plane_wall_gap_and_face_centroid():
+    q = _rot([1, 1, 0], 0.4)
+    x = np.array([0.0, 0.0, 2.0])
+    signs = np.array([[a, b, c] for a in (-1, 1) for b in (-1, 1) for c in (-1, 1)], dtype=float)
+    verts = x + (quat_to_matrix(q) @ (signs * 1.0).T).T
+    g, n, c = contact_plane(CUBE, [1.0] * 3, x, q, axis=2, coord=0.0, side=-1)
+    assert g == pytest.approx(verts[:, 2].min(), abs=1e-12)
+    np.testing.assert_allclose(n, [0, 0, -1])
+    # axis-aligned cube resting on its face: contact point = face centre below the centre
+    g, n, c = contact_plane(CUBE, [1.0] * 3, [3.0, 4.0, 1.05], IDENTITY, axis=2, coord=0.0, side=-1)
+    assert g == pytest.approx(0.05)
+    np.testing.assert_allclose(c, [3.0, 4.0, 0.05], atol=1e-12)
+
+
+# ------------------------------------------------------------------------------------------------
+# broad phase
+
+
+def test_cell_list_finds_exactly_the_pairs_of_an_all_pairs_search_with_periodic_images():
+    rng = np.random.default_rng(9)
+    n = 400
+    lo = np.array([0.0, -5.0, 0.0])
+    hi = np.array([30.0, 25.0, 40.0])
+    periodic = np.array([True, False, True])
+    x = rng.uniform(lo, hi, (n, 3))
+    x[:10, 0] += 30.0  # unwrapped positions on a periodic axis must work too
+    rb = rng.uniform(0.5, 1.5, n)
+    margin = 0.3
+    pi, pj, ps = candidate_pairs(x, rb, margin, lo, hi, periodic)
+    found = {(int(i), int(j)): s for i, j, s in zip(pi, pj, ps)}
+    L = hi - lo
+    expected = {}
+    for i in range(n):
+        for j in range(i + 1, n):
+            d = x[j] - x[i]
+            s = np.where(periodic, -L * np.floor(d / L + 0.5), 0.0)
+            if np.linalg.norm(d + s) <= rb[i] + rb[j] + margin:
+                expected[(i, j)] = s
+    assert set(found) == set(expected)
+    for k in expected:
+        np.testing.assert_allclose(found[k], expected[k])
+
+
+def test_contact_across_a_periodic_boundary_uses_the_nearest_image():
+    q = np.tile(IDENTITY, (2, 1))
+    x = np.array([[0.0, 0.0, 0.5], [0.0, 0.0, 29.6]])
+    pi, pj, ps = candidate_pairs(x, np.array([1.0, 1.0]), 0.1, np.array([-5.0, -5.0, 0.0]), np.array([5.0, 5.0, 30.0]),
+                                 np.array([False, False, True]))
+    assert list(zip(pi, pj)) == [(0, 1)]
+    g, n, _ = contact_pair(SPHERE, [1.0] * 3, x[0], q[0], SPHERE, [1.0] * 3, x[1] + ps[0], q[1])
+    assert g == pytest.approx(-1.1, abs=1e-12)
+    np.testing.assert_allclose(n, [0, 0, -1])
+
