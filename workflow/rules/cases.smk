@@ -24,4 +24,4 @@ rule simulate:
     resources:
         mem_mb=2000,
     shell:
-        "NUMBA_NUM_THREADS={threads} lbmpipe run {input} --out $(dirname {output.summary}) --quiet > {log} 2>&1"
+        "NUMBA_NUM_THREADS={threads} {LBMPIPE} run {input} --out $(dirname {output.summary}) --quiet > {log} 2>&1"
