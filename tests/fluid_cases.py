@@ -19,8 +19,7 @@ def omega_minus(tau: float, magic: float = MAGIC) -> float:
 
 def run_to_steady(sim: Simulation, chunk: int = 200, tol: float = 1e-12, max_steps: int = 200_000):
     """Step until the velocity field changes by less than ``tol`` (relative, max norm) per chunk."""
-    _, _, _, uz_old = sim.moments()
-    ux_old = sim.moments()[1]
+    _, ux_old, _, uz_old = sim.moments()
     fluid = sim.grid.fluid
     while sim.step_count < max_steps:
         sim.step(chunk)
