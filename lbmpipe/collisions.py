@@ -72,6 +72,7 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
+from .effects import Effect
 from .contact import bounding_radii, body_contact, candidate_pairs, pipe_wall_contact, plane_wall_contact
 from .rigid import Bodies, quat_to_matrices
 
@@ -458,7 +459,7 @@ def _resolve_kernel(
     kind, h, mass, inertia, x, v, q, wb, fixed,
     dcode, Rp, cx, cy, lo, hi, periodic,
     k_rest, contact_gap, spec, overlap_tol, manifold_tol, skin, max_sweeps, max_proj, dt,
-    do_impulses, stats,
+    do_impulses, stats, pairs=True,
 ):
     n = x.shape[0]
     Rm = quat_to_matrices(q)
@@ -478,7 +479,12 @@ def _resolve_kernel(
     # gap below which a contact can become active within this step
     reach = contact_gap + (2.0 * vmax * dt if spec else 0.0)
     margin = reach + skin
-    pi, pj, ps = candidate_pairs(x, rb, margin, lo, hi, periodic)
+    if pairs:
+        pi, pj, ps = candidate_pairs(x, rb, margin, lo, hi, periodic)
+    else:  # one particle, or a scene that asks for wall contacts only
+        pi = np.empty(0, dtype=np.int64)
+        pj = np.empty(0, dtype=np.int64)
+        ps = np.empty((0, 3))
     npair = pi.shape[0]
     cg = np.empty(npair)
     cn = np.empty((npair, 3))
@@ -702,7 +708,7 @@ def _check_periodic(domain_arrays, rb_max: float, margin: float) -> None:
             )
 
 
-def resolve_collisions(bodies: Bodies, domain: Domain, params: CollisionParams, dt: float) -> dict:
+def resolve_collisions(bodies: Bodies, domain: Domain, params: CollisionParams, dt: float, pairs: bool = True) -> dict:
     """Detect all particle-particle and particle-wall contacts, apply the impulses of
     Eqs. (16)-(21) (in place on ``bodies.v`` and ``bodies.wb``) and project overlaps away (in place
     on ``bodies.x``). See the module docstring for the model and the overlap bound.
@@ -712,6 +718,7 @@ def resolve_collisions(bodies: Bodies, domain: Domain, params: CollisionParams, 
     before the projection), ``max_overlap_after`` (after it; <= overlap_tol unless the projection
     was exhausted), ``sweeps``, ``projection_iters``, ``unresolved`` (contacts still approaching
     after max_sweeps), ``max_displacement`` (largest projection shift of a body), ``passes``.
+    ``pairs=False`` skips the broad phase and all particle-particle contacts (walls only).
     """
     n = bodies.n
     stats = np.zeros(_NSTATS)
@@ -732,7 +739,7 @@ def resolve_collisions(bodies: Bodies, domain: Domain, params: CollisionParams, 
             dcode, Rp, cx, cy, lo, hi, periodic,
             float(params.restitution), float(params.contact_gap), bool(params.speculative), float(params.overlap_tol),
             float(params.manifold_tol), float(params.skin), int(params.max_sweeps), int(params.max_projection_iters),
-            float(dt), p == 0, stats,
+            float(dt), p == 0, stats, bool(pairs),
         )
         passes += 1
         # bodies pushed further than half the skin may meet pairs outside the list: rebuild it
@@ -755,3 +762,38 @@ def _stats_dict(stats: np.ndarray, passes: int) -> dict:
         "max_displacement": float(stats[_S_DISP]),
         "passes": int(passes),
     }
+
+
+class CollisionEffect(Effect):
+    """Collisions as a step of the solver (``post``, after the hydrodynamic velocity update and
+    before the drift): ``resolve_collisions`` on the particle system's bodies, in lattice units
+    (dt = 1). With a single movable particle the pair search is skipped (walls only). Keeps the
+    run's totals and the largest overlaps for the summary (``record``)."""
+
+    phase = "post"
+
+    def __init__(self, system, domain: Domain, params: CollisionParams):
+        self.system = system
+        self.domain = domain
+        self.params = params
+        self.pairs = system.n > 1
+        self.name = "collisions: impulses + overlap removal" if self.pairs else "collisions: walls only (one particle)"
+        self.totals = {"calls": 0, "impulses": 0, "pair_contacts": 0, "wall_contacts": 0, "unresolved": 0,
+                       "max_overlap_before_lu": 0.0, "max_overlap_after_lu": 0.0}
+        self.last: dict = {}
+
+    def __call__(self, sim) -> None:
+        st = resolve_collisions(self.system.bodies, self.domain, self.params, 1.0, pairs=self.pairs)
+        t = self.totals
+        t["calls"] += 1
+        for k in ("impulses", "pair_contacts", "wall_contacts", "unresolved"):
+            t[k] += st[k]
+        t["max_overlap_before_lu"] = max(t["max_overlap_before_lu"], st["max_overlap_before"])
+        t["max_overlap_after_lu"] = max(t["max_overlap_after_lu"], st["max_overlap_after"])
+        self.last = st
+
+    def record(self) -> dict:
+        """Summary entry: parameters, pair search on/off, totals over the run."""
+        p = self.params
+        return {"enabled": True, "pairs": self.pairs, "restitution": p.restitution, "contact_gap_lu": p.contact_gap,
+                "overlap_bound_lu": p.overlap_tol, **self.totals}

@@ -20,6 +20,7 @@ never returns fewer particles.
 from __future__ import annotations
 
 import math
+import time
 from pathlib import Path
 
 import numpy as np
@@ -106,10 +107,11 @@ def _rsa(n_new, rb_new, x_old, rb_old, lo, hi, periodic, radius, u, max_attempts
     return out, placed
 
 
-def bodies_from_scene(scene, params) -> tuple[Bodies, list[dict]]:
+def bodies_from_scene(scene, params, info: dict | None = None) -> tuple[Bodies, list[dict]]:
     """The scene's particles as ``Bodies`` (lattice units) and one static record per body
     (``id, shape, diameter_mm, length_mm, edge_mm, density_kg_m3, fixed``). Raises SceneError when
-    a random group cannot be placed."""
+    a random group cannot be placed or a packed group cannot be packed. ``info``, if given, receives
+    how a packed group was made (``packed_group``)."""
     units = params.units
     dx_mm = scene.numerics.dx_mm
     rho_f = scene.fluid.density_kg_m3
@@ -172,7 +174,67 @@ def bodies_from_scene(scene, params) -> tuple[Bodies, list[dict]]:
         centres.append(x)
         radii.append(np.full(n, rb))
         record(g, n, g.fixed)
+
+    for g in pspec.packed:
+        x_mm, q, made = packed_group(g, scene)
+        if info is not None:
+            info.update(made)
+        kind, h = make_shape(_shape_spec(g, dx_mm))
+        n = x_mm.shape[0]
+        parts.append(Bodies.make(kind, h, g.density_ratio, x_mm / dx_mm, q=q, fixed=np.zeros(n, dtype=bool)))
+        record(g, n, False)
     return Bodies.concatenate(parts), static
+
+
+PACKING_COLUMNS = ("id", "x_mm", "y_mm", "z_mm", "qw", "qx", "qy", "qz")
+
+
+def packed_group(g, scene) -> tuple[np.ndarray, np.ndarray, dict]:
+    """Centres (mm, pipe axis at x = y = 0) and quaternions of a ``PackedParticles`` group, read
+    from ``g.file`` when given, else packed now (``lbmpipe.packing.pack``, in mm, so the packing
+    does not depend on dx). Returns ``(x_mm (N, 3), q (N, 4), info)``; info holds the target and
+    achieved concentrations, the count and the packing time. Raises ``SceneError`` (naming the
+    highest concentration reached) when the target cannot be packed or the file does not match."""
+    from . import packing
+
+    kind, h = make_shape(_shape_spec(g, 1.0))  # mm
+    radius, length = scene.domain.diameter_mm / 2.0, scene.domain.length_mm
+    n = packing.count_for_concentration(kind, h, radius, length, g.concentration)
+    info = {"concentration_target": float(g.concentration), "count": n,
+            "concentration_achieved": packing.achieved_concentration(kind, h, n, radius, length), "seed": int(g.seed)}
+    if g.file is not None:
+        try:
+            df = pd.read_csv(g.file)
+        except (OSError, ValueError) as exc:
+            raise SceneError("particles.packed[0].file", f"cannot read the packing file {g.file} ({exc})",
+                             "run `lbmpipe pack SCENE --out FILE` first, or remove `file` to pack at start-up") from None
+        if list(df.columns) != list(PACKING_COLUMNS) or len(df) != n:
+            raise SceneError("particles.packed[0].file",
+                             f"{g.file} holds {len(df)} rows with columns {list(df.columns)}; this group needs {n} rows "
+                             f"with columns {list(PACKING_COLUMNS)}",
+                             "regenerate it with `lbmpipe pack` for this scene")
+        x = df[["x_mm", "y_mm", "z_mm"]].to_numpy(np.float64)
+        q = df[["qw", "qx", "qy", "qz"]].to_numpy(np.float64)
+        info["source"] = str(g.file)
+        info["max_overlap_mm"] = packing.max_overlap(kind, h, x, q, radius, length)
+        return x, q / np.linalg.norm(q, axis=1)[:, None], info
+    t0 = time.perf_counter()
+    try:
+        x, q = packing.pack(kind, h, n, radius, length, g.seed, max_seconds=g.max_seconds)
+    except packing.PackingError as exc:
+        raise SceneError("particles.packed[0].concentration", str(exc),
+                         f"lower the concentration to at most {exc.reached:.3f}, or use smaller particles") from None
+    info["seconds"] = time.perf_counter() - t0
+    info["source"] = "packed at start-up"
+    info["max_overlap_mm"] = packing.max_overlap(kind, h, x, q, radius, length)
+    return x, q, info
+
+
+def write_packing(path: Path, x_mm: np.ndarray, q: np.ndarray) -> None:
+    """The packing CSV ``packed_group`` reads (columns ``PACKING_COLUMNS``), full precision."""
+    df = pd.DataFrame({"id": np.arange(len(x_mm)), "x_mm": x_mm[:, 0], "y_mm": x_mm[:, 1], "z_mm": x_mm[:, 2],
+                       "qw": q[:, 0], "qx": q[:, 1], "qy": q[:, 2], "qz": q[:, 3]})
+    df.to_csv(path, index=False, float_format="%.17g")
 
 
 # ----------------------------------------------------------------------------------------------

@@ -224,12 +224,50 @@ class RandomParticles(_Model):
     density_ratio: float = Field(1.0, gt=0, description="Particle density / fluid density.")
 
 
+class PackedParticles(_Model):
+    """A dense random packing of identical particles in the pipe (the paper's 30 % and 50 %
+    suspensions): uniformly random positions and orientations without overlap, built by
+    `lbmpipe.packing.pack` (random start, then grow-and-relax). The count is
+    round(concentration * pipe volume / particle volume). A target that cannot be packed within
+    `max_seconds` is an error naming the highest concentration reached; another concentration is
+    never run silently. Pipe only, and alone (no `bodies` or `random` beside it)."""
+
+    shape: ShapeName = Field(description="`sphere`, `cylinder` or `cube`.")
+    diameter_mm: Optional[float] = Field(None, gt=0, description="Sphere and cylinder: diameter in mm.")
+    length_mm: Optional[float] = Field(None, gt=0, description="Cylinder: length in mm.")
+    edge_mm: Optional[float] = Field(None, gt=0, description="Cube: edge length in mm.")
+    concentration: float = Field(gt=0, lt=1, description="Solid volume fraction of the pipe.")
+    seed: int = Field(0, ge=0, description="Random seed of the packing (positions and orientations).")
+    density_ratio: float = Field(1.0, gt=0, description="Particle density / fluid density.")
+    max_seconds: float = Field(60.0, gt=0, description="Wall-time budget of the packing, in s.")
+    file: Optional[str] = Field(
+        None,
+        description="CSV written by `lbmpipe pack` (columns id, x_mm, y_mm, z_mm, qw, qx, qy, qz) to read instead of "
+        "packing again; a relative path is relative to the scene file. Its count and shape must match this group.",
+    )
+
+
+class Collisions(_Model):
+    """Particle-particle and particle-wall collisions: the paper's instantaneous impulses,
+    Eqs. (16)-(21), with overlap removal (`lbmpipe/collisions.py`). Lengths are in lattice
+    spacings because they are numerical tolerances of the discrete step."""
+
+    enabled: bool = Field(True, description="Resolve collisions. `false` lets particles pass through each other and the wall "
+                          "(NOTES.md claim 14 compares runs with and without).")
+    restitution: float = Field(1.0, ge=0, le=1, description="Restitution k of Eq. (17); 1 = elastic, the paper's.")
+    contact_gap_dx: float = Field(0.1, ge=0, description="A gap at or below this (in lattice spacings) counts as contact.")
+    overlap_tol_dx: float = Field(0.01, gt=0, description="Largest overlap (lattice spacings) left after each step: the stated bound.")
+
+
 class Particles(_Model):
     """Rigid particles coupled to the fluid (Ladd's moving bounce-back, Eqs. (8)-(12)); see
-    `lbmpipe/coupling.py`. Bodies are numbered in order: `bodies` first, then each `random` group."""
+    `lbmpipe/coupling.py`. Bodies are numbered in order: `bodies` first, then each `random`
+    group, then the `packed` group."""
 
     bodies: list[ParticleBody] = Field(default_factory=list, description="Explicitly placed particles.")
     random: list[RandomParticles] = Field(default_factory=list, description="Randomly placed groups of particles.")
+    packed: list[PackedParticles] = Field(default_factory=list, description="A dense random packing (at most one group; pipe only).")
+    collisions: Collisions = Field(default_factory=Collisions, description="Collision model between particles and with walls.")
     gravity_m_s2: Vec3 = Field(
         (0.0, 0.0, 0.0),
         description="Gravity [gx, gy, gz] in m/s^2 acting on the particles' excess mass (rho_p - rho_f) V (the fluid carries "
@@ -405,6 +443,14 @@ def _particle_errors(s: Scene) -> list[SceneError]:
     d, dx = s.domain, s.numerics.dx_mm
     groups = [(f"particles.bodies[{i}]", b) for i, b in enumerate(s.particles.bodies)]
     groups += [(f"particles.random[{i}]", g) for i, g in enumerate(s.particles.random)]
+    groups += [(f"particles.packed[{i}]", g) for i, g in enumerate(s.particles.packed)]
+    if s.particles.packed:
+        if d.kind != "pipe":
+            errs.append(SceneError("particles.packed", "dense packing is implemented for the pipe only",
+                                   "use domain.kind: pipe, or place particles with particles.random / particles.bodies"))
+        if len(s.particles.packed) > 1 or s.particles.bodies or s.particles.random:
+            errs.append(SceneError("particles.packed", "a packed group must be the only particles of the scene (the packer fills "
+                                   "an empty pipe)", "keep one packed group and remove the others"))
     if d.kind == "pipe":
         extents = (d.diameter_mm, d.diameter_mm, d.length_mm)
         periodic = (False, False, True)
@@ -430,6 +476,8 @@ def _particle_errors(s: Scene) -> list[SceneError]:
                 errs.append(SceneError(path, f"the {p.shape}'s bounding diameter {_fmt(2 * rb)} mm plus two nodes exceeds the "
                                        f"periodic length along {axis} ({_fmt(extents[a])} mm)",
                                        f"make the domain longer than {_fmt(2 * rb + 2 * dx)} mm along {axis} or the particle smaller"))
+        if isinstance(p, PackedParticles):
+            continue
         if isinstance(p, RandomParticles):
             if (p.count is None) == (p.concentration is None):
                 errs.append(SceneError(f"{path}.count", "give exactly one of count and concentration",
@@ -575,6 +623,11 @@ def load_scene(path: str | Path) -> Scene:
     if not isinstance(data, dict):
         raise SceneError(str(path), f"the file must hold a YAML mapping, got {type(data).__name__}",
                          f"write the scene as `name: ...`, `domain: ...`, ... ; {DOCS_PATH}")
+    # a packing file named in the scene is relative to the scene file, not to the working directory
+    packed = (data.get("particles") or {}).get("packed") if isinstance(data.get("particles"), dict) else None
+    for g in packed if isinstance(packed, list) else []:
+        if isinstance(g, dict) and isinstance(g.get("file"), str) and not Path(g["file"]).is_absolute():
+            g["file"] = str((path.parent / g["file"]).resolve())
     return Scene.model_validate(data)
 
 

@@ -56,6 +56,7 @@ class Simulation:
         self.set_equilibrium(1.0, (0.0, 0.0, 0.0))
         self.particles = None  # coupling.ParticleSystem when the scene has particles
         self.particle_static: list[dict] = []
+        self.packing: dict = {}  # how a packed group was made (target/achieved concentration, ...)
 
     @property
     def f2(self) -> np.ndarray:
@@ -116,22 +117,42 @@ def grid_from_scene(scene, params) -> bnd.Grid:
 def particle_system_from_scene(scene, params, grid):
     """The scene's particles on ``grid`` as a ``coupling.ParticleSystem`` and their static records,
     or ``(None, [])`` when the scene has none."""
-    if scene.particles is None or not (scene.particles.bodies or scene.particles.random):
+    pspec = scene.particles
+    if pspec is None or not (pspec.bodies or pspec.random or pspec.packed):
         return None, []
     from .coupling import ParticleSystem
     from .particles import bodies_from_scene
 
-    bodies, static = bodies_from_scene(scene, params)
-    gravity = [params.units.acceleration(g) for g in scene.particles.gravity_m_s2]
-    return ParticleSystem(grid, bodies, gravity=gravity), static
+    info: dict = {}
+    bodies, static = bodies_from_scene(scene, params, info)
+    gravity = [params.units.acceleration(g) for g in pspec.gravity_m_s2]
+    system = ParticleSystem(grid, bodies, gravity=gravity)
+    system.packing_info = info
+    return system, static
+
+
+def collision_effect(scene, params, system):
+    """The collision effect the scene asks for (``None`` without free particles or with
+    ``particles.collisions.enabled: false``): the particles' domain in lattice units."""
+    if system is None or not len(system.free_ids) or not scene.particles.collisions.enabled:
+        return None
+    from .collisions import CollisionEffect, CollisionParams, Domain
+    from .particles import domain_geometry
+
+    lo, hi, periodic, radius = domain_geometry(scene, params)
+    dom = Domain.pipe(radius, hi[2] - lo[2], z0=lo[2]) if radius > 0 else Domain.box(lo, hi, periodic)
+    c = scene.particles.collisions
+    return CollisionEffect(system, dom, CollisionParams(restitution=c.restitution, contact_gap=c.contact_gap_dx,
+                                                        overlap_tol=c.overlap_tol_dx))
 
 
 def simulation_from_scene(scene, params) -> Simulation:
     """Assemble the simulation a scene declares: exactly its effects, and its initial state.
 
-    With particles, the step is: wall fills, particle fills (``coupling``), sweep, then the
-    flow-rate flux correction, the controller and the particle motion (in that order: the
-    correction needs the owner map of the sweep, the motion changes it)."""
+    With particles, the step is: wall fills, particle fills and velocity update (``coupling``),
+    sweep, then the flow-rate flux correction, the controller, the collisions and the particle
+    motion (in that order: the correction needs the owner map of the sweep, the collisions act on
+    the updated velocities before the drift, the motion changes the owner map)."""
     grid = grid_from_scene(scene, params)
     num = scene.numerics
     walls = fx.wall_effects(grid, num.wall, dict(params.wall_velocities_lu))
@@ -151,11 +172,15 @@ def simulation_from_scene(scene, params) -> Simulation:
         ctl = fx.FlowRateControl(params.flow_rate_lu, grid.radius, params.nu_lu, grid.shape[2])
         extra.append(ctl)
         force = np.array([0.0, 0.0, ctl.f_ref])
+    collide = collision_effect(scene, params, system)
+    if collide is not None:
+        extra.append(collide)
     extra += after
     sim = Simulation(grid, collision=num.collision, omega=params.omega, omega_minus=params.omega_minus,
                      precision=num.precision, force=force, flux=flux, extra_effects=extra)
     sim.particles = system
     sim.particle_static = static
+    sim.packing = getattr(system, "packing_info", {}) if system is not None else {}
     if scene.initial.velocity == "parabolic" and grid.kind == "pipe":
         x, y, _ = grid.positions()
         r = np.sqrt(x[:, None] ** 2 + y[None, :] ** 2)
@@ -198,6 +223,7 @@ def run_scene(scene, params, out_dir: Path, progress: bool = True, max_steps: in
     is the mixture's (fluid plus particle volume flux) and the profile the fluid's.
     """
     from . import outputs
+    from .collisions import CollisionEffect
 
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -274,6 +300,7 @@ def run_scene(scene, params, out_dir: Path, progress: bool = True, max_steps: in
         "mass_drift_rel": (mass1 - mass0) / mass0 if math.isfinite(mass1) else float("nan"),
         "effects": {e.name: sim.timers[e.name] for e in sim.effects},
         "samples_averaged": n_avg,
+        "spinup_s": spinup * units.dt_s,
     }
     files["flow_rate.csv"] = outputs.write_flow_rate(out_dir, series, units, scene)
     if ps is not None:
@@ -281,7 +308,13 @@ def run_scene(scene, params, out_dir: Path, progress: bool = True, max_steps: in
             "count": ps.n, "fixed": int(len(ps.fixed_ids)),
             "volume_fraction": float(ps.vol.sum() / max(float(np.count_nonzero(grid.fluid)), 1.0)),
             "links": int(ps.lcnt.sum()),
+            "collisions": sim.effect(CollisionEffect) is not None,
+            **sim.packing,
         }
+        ce = sim.effect(CollisionEffect)
+        summary["collisions"] = ce.record() if ce is not None else {
+            "enabled": False, "reason": "switched off by the scene" if not scene.particles.collisions.enabled
+            else "no free particles"}
         files[particles_out.write_static(out_dir, sim.particle_static)] = True
         files[recorder.write(out_dir)] = True
     if grid.kind == "pipe" and n_avg > 0:
