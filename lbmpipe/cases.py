@@ -2,36 +2,49 @@
 
 The Snakemake layer only names cases and fidelity levels; this module decides what a case means
 physically (NOTES.md "Parameters"): the 50 mm x 100 mm periodic pipe, the two flow rates with their
-Reynolds numbers, and how a fidelity level sets the lattice. Coarser levels keep the paper's Mach
-number (acoustic scaling, ``dt`` proportional to ``dx``), so that only the resolution changes;
-``tau`` then follows from the Reynolds number.
+Reynolds numbers, the particles (a dense random packing of one shape at 30 % or 50 %, collisions on
+or off), and how a fidelity level sets the lattice. Coarser levels keep the paper's Mach number
+(acoustic scaling, ``dt`` proportional to ``dx``), so that only the resolution changes; ``tau`` then
+follows from the Reynolds number.
+
+Packings are made in mm, independent of the lattice, so one packing (shape, concentration, seed)
+serves every fidelity level and both Reynolds numbers: the Re 9.4 and Re 26 runs of a shape start
+from the same particles, as do the runs with and without collisions.
 """
 
 from __future__ import annotations
 
 import copy
+import json
+import os
 from pathlib import Path
 
 import yaml
 
-from .scene import Scene
+from .scene import Scene, SceneError
 
 PIPE = {"kind": "pipe", "diameter_mm": 50.0, "length_mm": 100.0}
 #: NOTES.md: Q = 1.577e-4 m^3/s at Re 9.4 ("LF"), 3.154e-4 m^3/s at Re 26 ("HF").
 FLOWS = {9.4: 1.577e-4, 26.0: 3.154e-4}
 
 
-def fidelity_numerics(fidelity: dict) -> dict:
-    """Scene ``numerics`` for a fidelity level: ``dx_mm`` and ``dt_s`` (or ``dt_per_mm_s``)."""
+def fidelity_numerics(fidelity: dict, reynolds: float | None = None) -> dict:
+    """Scene ``numerics`` for a fidelity level: ``dx_mm`` and ``dt_s`` (or ``dt_per_mm_s``); at
+    Re 26 the time step is multiplied by ``re26_dt_factor`` (default 1): the paper's dt gives a
+    centre-line Mach number of 0.56 there, which the stability suite finds unstable once particles
+    crowd the pipe, so the levels halve it (Mach 0.28, NOTES.md's third row)."""
     num = {k: v for k, v in fidelity.get("numerics", {}).items()}
     dx = float(fidelity["dx_mm"])
     num["dx_mm"] = dx
     num["dt_s"] = float(fidelity.get("dt_s", fidelity.get("dt_per_mm_s", 1.0e-3) * dx))
+    if reynolds is not None and float(reynolds) == 26.0:
+        num["dt_s"] *= float(fidelity.get("re26_dt_factor", 1.0))
     return num
 
 
-def case_scene(name: str, case: dict, fidelity_name: str, fidelity: dict) -> dict:
-    """Scene dict (physical units) for one case of the config at one fidelity level."""
+def case_scene(name: str, case: dict, fidelity_name: str, fidelity: dict, packing_file: str | Path | None = None) -> dict:
+    """Scene dict (physical units) for one case of the config at one fidelity level; a particle
+    case reads its packing from ``packing_file`` when given (relative to the scene file)."""
     re = float(case["reynolds"])
     if re not in FLOWS:
         raise ValueError(f"case {name}: reynolds must be one of {sorted(FLOWS)} (the paper's flows), got {re}")
@@ -42,19 +55,157 @@ def case_scene(name: str, case: dict, fidelity_name: str, fidelity: dict) -> dic
         "fluid": {"density_kg_m3": 1000.0, "reynolds": re},
         "driving": {"kind": "flow_rate", "flow_rate_m3_s": FLOWS[re]},
         "initial": {"velocity": "parabolic"},
-        "numerics": fidelity_numerics(fidelity),
+        "numerics": fidelity_numerics(fidelity, re),
         "run": {k: run[k] for k in ("duration_s", "spinup_s", "sample_interval_s")},
     }
     if "mach_limit" in fidelity:
         scene["numerics"]["mach_limit"] = fidelity["mach_limit"]
+    part = case.get("particles")
+    if part is not None:
+        group = {k: part[k] for k in ("shape", "diameter_mm", "length_mm", "edge_mm", "concentration") if k in part}
+        group["seed"] = int(part.get("seed", DEFAULT_SEED))
+        if packing_file is not None:
+            group["file"] = str(packing_file)
+        scene["particles"] = {"packed": [group], "collisions": {"enabled": bool(case.get("collisions", True))}}
     return scene
 
 
-def write_case_scene(config: dict, fidelity_name: str, case_name: str, path: Path) -> Scene:
-    """Validate the case's scene and write it as YAML (the file ``lbmpipe run`` reads)."""
+#: packing seed of a case that names none
+DEFAULT_SEED = 1
+
+
+def packing_id(case: dict) -> str | None:
+    """Name of the packing a case starts from (shared by the cases with the same shape, size,
+    concentration and seed), e.g. ``cube8_c30_s1``; ``None`` for a particle-free case."""
+    p = case.get("particles")
+    if p is None:
+        return None
+    size = {"cube": lambda: f"cube{p['edge_mm']:g}", "cylinder": lambda: f"cyl{p['diameter_mm']:g}x{p['length_mm']:g}",
+            "sphere": lambda: f"sphere{p['diameter_mm']:g}"}[p["shape"]]()
+    return f"{size}_c{round(100 * p['concentration']):d}_s{int(p.get('seed', DEFAULT_SEED))}"
+
+
+def packing_case(config: dict, pid: str) -> tuple[str, dict]:
+    """A case of the config that uses packing ``pid`` (any one: they share it)."""
+    for name, case in config["cases"].items():
+        if packing_id(case) == pid:
+            return name, case
+    raise ValueError(f"no case of the config uses packing {pid!r}")
+
+
+def pack_case(config: dict, pid: str, out_csv: Path, out_json: Path) -> dict:
+    """Make packing ``pid`` (in mm; ``lbmpipe.packing``) and write it as CSV plus a JSON record
+    (``status`` packed | unpackable, target and achieved concentration, seconds, message).
+
+    An unreachable target is a result, not a failure: the record says ``unpackable`` with the
+    highest concentration reached, the CSV holds only its header, and the cases that use it are
+    reported as not packable instead of stopping the pipeline."""
+    from .particles import PACKING_COLUMNS, packed_group, write_packing
+
+    name, case = packing_case(config, pid)
+    fid_name = next(iter(config["fidelities"]))
+    data = case_scene(name, case, fid_name, config["fidelities"][fid_name])
+    data["particles"]["packed"][0]["max_seconds"] = float(config.get("packing_max_seconds", 60.0))
+    scene = Scene.model_validate(data)
+    group = scene.particles.packed[0]
+    Path(out_csv).parent.mkdir(parents=True, exist_ok=True)
+    try:
+        x, q, info = packed_group(group, scene)
+    except SceneError as exc:
+        from .packing import count_for_concentration
+        from .shapes import make_shape
+
+        size = {k.removesuffix("_mm"): getattr(group, k) for k in ("diameter_mm", "length_mm", "edge_mm")
+                if getattr(group, k) is not None}
+        kind, h = make_shape({"shape": group.shape, **size})
+        reached = float(getattr(exc, "reached", float("nan")))
+        info = {"status": "unpackable", "packing": pid, "concentration_target": group.concentration,
+                "concentration_reached": reached, "seed": group.seed, "message": exc.message,
+                "count": count_for_concentration(kind, h, PIPE["diameter_mm"] / 2, PIPE["length_mm"], group.concentration)}
+        Path(out_csv).write_text(",".join(PACKING_COLUMNS) + "\n")
+    else:
+        info = {"status": "packed", "packing": pid, **info}
+        write_packing(Path(out_csv), x, q)
+    Path(out_json).write_text(json.dumps(info, indent=2) + "\n")
+    return info
+
+
+def write_unpackable(case_dir: Path, case_name: str, packing_info: dict) -> None:
+    """Outputs of a case whose packing could not be made: a summary with status ``unpackable``
+    (target, highest concentration reached, message) and empty tables, so that statistics and
+    figures list the case as not packable."""
+    import pandas as pd
+
+    from .particles import PARQUET_COLUMNS, STATIC_COLUMNS
+
+    case_dir = Path(case_dir)
+    case_dir.mkdir(parents=True, exist_ok=True)
+    summary = {"status": "unpackable", "case": case_name,
+               "message": f"not run: the packing could not be made ({packing_info.get('message', '')})",
+               "steps": 0, "simulated_seconds": 0.0, "wall_seconds": 0.0, "spinup_s": 0.0,
+               "packing": {k: packing_info.get(k) for k in ("packing", "concentration_target", "concentration_reached",
+                                                             "count", "seed", "message")},
+               "particles": {"count": 0, "concentration_target": packing_info.get("concentration_target"),
+                             "concentration_achieved": packing_info.get("concentration_reached")}}
+    (case_dir / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
+    pd.DataFrame(columns=list(PARQUET_COLUMNS), dtype="float64").to_parquet(case_dir / "particles.parquet", index=False)
+    (case_dir / "particles_static.csv").write_text(",".join(STATIC_COLUMNS) + "\n")
+    (case_dir / "profile.csv").write_text("r_mm,uz_m_s,uz_poiseuille_m_s,nodes\n")
+    (case_dir / "flow_rate.csv").write_text("t_s,q_m3_s,force_density_N_m3,max_density_deviation\n")
+
+
+def estimate_minutes(config: dict, fidelity_name: str, case_name: str) -> int:
+    """Wall-time estimate of one case (``lbmpipe.cost``, with a factor for particle work), in
+    whole minutes, for the cluster profile's ``runtime`` resource."""
+    from .units import derive
+
     fid = config["fidelities"][fidelity_name]
-    data = case_scene(case_name, config["cases"][case_name], fidelity_name, fid)
-    scene = Scene.model_validate(data)  # fail here, naming the field, rather than in the solver
+    case = config["cases"][case_name]
+    data = case_scene(case_name, case, fidelity_name, fid)
+    data.pop("particles", None)
+    params = derive(Scene.model_validate(data))
+    factor = 1.0 if case.get("particles") is None else PARTICLE_COST_FACTOR
+    return max(1, int(2 * factor * params.estimated_seconds / 60.0) + 1)
+
+
+#: particle coupling and collisions relative to the fluid step (benchmarks/particles.py)
+PARTICLE_COST_FACTOR = 3.0
+
+
+def write_case_scene(config: dict, fidelity_name: str, case_name: str, path: Path,
+                     packing_csv: Path | None = None) -> Scene:
+    """Validate the case's scene and write it as YAML (the file ``lbmpipe run`` reads); the
+    packing file is referenced relative to the scene file."""
+    fid = config["fidelities"][fidelity_name]
+    rel = os.path.relpath(Path(packing_csv).resolve(), Path(path).resolve().parent) if packing_csv else None
+    data = case_scene(case_name, config["cases"][case_name], fidelity_name, fid, rel)
+    probe = copy.deepcopy(data)
+    for g in (probe.get("particles") or {}).get("packed", []):
+        g.pop("file", None)  # validate without reading the file
+    scene = Scene.model_validate(probe)  # fail here, naming the field, rather than in the solver
     Path(path).parent.mkdir(parents=True, exist_ok=True)
     Path(path).write_text(yaml.safe_dump(data, sort_keys=False))
     return scene
+
+
+def simulate_case(scene_path: Path, packing_json: Path | None, out_dir: Path, threads: int,
+                  checkpoint: Path | None = None) -> dict:
+    """Run one case of the pipeline: the scene's solver run, or, when its packing could not be
+    made, the ``unpackable`` record (``write_unpackable``). Returns the summary."""
+    from .scene import load_scene
+    from .units import derive
+
+    out_dir = Path(out_dir)
+    if packing_json is not None:
+        info = json.loads(Path(packing_json).read_text())
+        if info.get("status") != "packed":
+            write_unpackable(out_dir, out_dir.name, info)
+            return json.loads((out_dir / "summary.json").read_text())
+    import numba
+
+    numba.set_num_threads(max(1, min(int(threads), numba.config.NUMBA_NUM_THREADS)))
+    from .solver import run_scene
+
+    scene = load_scene(scene_path)
+    kwargs = {"checkpoint": checkpoint} if checkpoint is not None else {}
+    return run_scene(scene, derive(scene), out_dir, progress=False, **kwargs)

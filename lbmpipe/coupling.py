@@ -112,8 +112,14 @@ After a move, for each node whose owner changed:
 
 ``(P, L_P)`` enters the next implicit update, so fluid + particles conserve total momentum exactly
 (``ParticleSystem.total_momentum`` counts the impulse not yet applied). Mass is not conserved
-exactly by a moving particle (a covered node takes its mass along, an uncovered one gets its
-neighbours' density), a known property of Ladd's scheme; the change averages out over a move.
+by a moving particle (a covered node takes its mass along, an uncovered one gets its neighbours'
+density; the moving-wall term of Eq. (8) transfers mass across each link), a known property of
+Ladd's scheme, and the loss is systematic: a covered node, on the front of a moving particle, is
+denser than the nodes uncovered in its wake. Measured: the mean fluid density falls 0.6 % per
+100 steps with 115 cubes at 30 % in the Re 9.4 pipe (dx 2.5 mm), growing with the particle
+speed. ``MassCorrection`` therefore restores the mean fluid density every few steps by adding
+``w_i d_rho`` to every fluid node (no momentum: ``sum_i w_i e_i = 0``), and the summary reports the
+total mass it added.
 
 External forces on particles
 ----------------------------
@@ -1388,6 +1394,46 @@ def _bouzidi_guard(f2, owner, fluid, fluid2, solid, i, opp):
             f2[opp[k], solid[k]] = f2[i[k], fluid[k]]
 
 
+class MassCorrection(fx.Effect):
+    """Restores the mean fluid density lost by the moving particles' remap (module docstring):
+    every ``every`` steps, after the motion, ``f_i += w_i d_rho`` on every fluid node with
+    ``d_rho = rho_target - M / n_fluid``, where ``rho_target`` is the mean density at the first
+    call. Adds no momentum. ``added`` is the total mass added (lattice units)."""
+
+    name = "particles: mass correction"
+    phase = "post"
+
+    def __init__(self, system: ParticleSystem, every: int = 25):
+        self.system = system
+        self.every = int(every)
+        self.rho_target = None
+        self.added = 0.0
+        self.calls = 0
+
+    def __call__(self, sim) -> None:
+        s = self.system
+        self.calls += 1
+        f2 = sim.f_next.reshape(sim.lattice.q, -1)
+        if self.rho_target is None:
+            self.rho_target = float(s.fluid_momentum(f2)[0]) / max(s.n_fluid, 1)
+        if self.calls % self.every:
+            return
+        mass = float(s.fluid_momentum(f2)[0])
+        n = int(s.n_fluid)
+        d_rho = self.rho_target - mass / max(n, 1)
+        _add_density(f2, s.owner, s.w, d_rho)
+        self.added += d_rho * n
+
+
+@njit(parallel=True, cache=True)
+def _add_density(f2, owner, w, d_rho):
+    n = owner.shape[0]
+    for node in prange(n):
+        if owner[node] == FLUID:
+            for i in range(w.shape[0]):
+                f2[i, node] += w[i] * d_rho
+
+
 def particle_effects(system: ParticleSystem, flux_control: bool = False, bouzidi_links=None, wall_links=()):
     """The effects a particle system needs, and nothing else: ``(pre, post_before_control,
     post_after_control)``. The flux correction runs after the sweep and before the flow-rate
@@ -1400,5 +1446,5 @@ def particle_effects(system: ParticleSystem, flux_control: bool = False, bouzidi
     if len(system.free_ids):
         pre.append(ParticleCoupling(system))
     before = [ParticleFluxCorrection(system, wall_links)] if flux_control and system.n else []
-    after = [ParticleMotion(system)] if len(system.free_ids) else []
+    after = [ParticleMotion(system), MassCorrection(system)] if len(system.free_ids) else []
     return pre, before, after

@@ -103,27 +103,42 @@ class FlowRateControl(Effect):
 
     The paper's pipe is periodic, so a body force (a uniform pressure gradient) drives it; the
     force that yields the paper's Q is not known in advance once particles or a staircase wall
-    change the resistance. An integral controller adjusts it every step from the z-momentum that
-    the sweep sums anyway. Its gain is set for critical damping of the slowest viscous mode of a
-    pipe, time constant ``tau_p = R^2 / (nu j_0^2)`` (``j_0 = 2.405``, the first zero of J_0):
-    ``dF/dt = F_ref (Q* - Q) / (4 tau_p Q*)``, ``F_ref = 8 rho nu Q* / (pi R^4)`` (Hagen-Poiseuille).
+    change the resistance (a 50 % suspension needs several times the Hagen-Poiseuille gradient).
+    A proportional-integral controller sets it every step from the z-momentum that the sweep sums
+    anyway. The plant is an integrator: a uniform force density ``F`` on the ``N`` nodes of the
+    pipe (fluid and particles: ``ParticleCoupling`` applies it to the particle volumes too)
+    changes the flux ``Q = sum j_z / n_z`` at the rate ``N F / n_z`` minus the wall and particle
+    drag, with no delay. So ``F = F_I + K_p (Q* - Q)`` with ``K_p = n_z / (N tau_c)`` brings a flux
+    error back within ``tau_c`` steps, and ``dF_I/dt = K_p (Q* - Q) / (4 tau_c)`` (critical
+    damping of the loop) finds the steady drag. ``F_I`` starts at Hagen-Poiseuille's
+    ``F_ref = 8 rho nu Q* / (pi R^4)``.
     """
 
     name = "flow-rate control"
     phase = "post"
 
-    def __init__(self, q_target: float, radius: float, nu: float, n_z: int):
+    #: response time of the flux, in steps: fast against the viscous time of the pipe
+    #: (R^2 / nu ~ 10^3 - 10^4 steps) so Q holds while particles rearrange, slow against one step
+    #: so the force does not chase the step-to-step noise of the particle remap.
+    TAU_STEPS = 20.0
+
+    def __init__(self, q_target: float, radius: float, nu: float, n_z: int, n_nodes: int | None = None,
+                 tau_steps: float = TAU_STEPS):
         self.q_target = q_target
         self.n_z = n_z
         self.f_ref = 8.0 * nu * q_target / (np.pi * radius**4)
-        tau_p = radius**2 / (nu * 2.404825557695773**2)
-        self.gain = self.f_ref / (4.0 * tau_p * q_target)
+        nodes = float(n_nodes) if n_nodes is not None else np.pi * radius**2 * n_z
+        self.k_p = n_z / (nodes * tau_steps)
+        self.k_i = self.k_p / (4.0 * tau_steps)
+        self.f_int = self.f_ref
         self.q = q_target
 
     def __call__(self, sim) -> None:
         # Guo's u includes F/2, so the swept z-momentum is the physical one.
         self.q = sim.last_flux / self.n_z
-        sim.force[2] += self.gain * (self.q_target - self.q)
+        err = self.q_target - self.q
+        self.f_int += self.k_i * err
+        sim.force[2] = self.f_int + self.k_p * err
 
 
 def moving_wall_deltas(links: bnd.Links, lattice, velocities: dict[str, tuple], rho0: float = 1.0) -> np.ndarray:

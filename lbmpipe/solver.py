@@ -169,7 +169,7 @@ def simulation_from_scene(scene, params) -> Simulation:
         extra += pre + before
     force = np.array(params.accel_lu, dtype=np.float64)  # force density = rho_0 g, rho_0 = 1
     if flux:
-        ctl = fx.FlowRateControl(params.flow_rate_lu, grid.radius, params.nu_lu, grid.shape[2])
+        ctl = fx.FlowRateControl(params.flow_rate_lu, grid.radius, params.nu_lu, grid.shape[2], grid.n_fluid)
         extra.append(ctl)
         force = np.array([0.0, 0.0, ctl.f_ref])
     collide = collision_effect(scene, params, system)
