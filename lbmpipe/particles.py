@@ -222,8 +222,10 @@ def packed_group(g, scene) -> tuple[np.ndarray, np.ndarray, dict]:
     try:
         x, q = packing.pack(kind, h, n, radius, length, g.seed, max_seconds=g.max_seconds)
     except packing.PackingError as exc:
-        raise SceneError("particles.packed[0].concentration", str(exc),
-                         f"lower the concentration to at most {exc.reached:.3f}, or use smaller particles") from None
+        err = SceneError("particles.packed[0].concentration", str(exc),
+                         f"lower the concentration to at most {exc.reached:.3f}, or use smaller particles")
+        err.reached = exc.reached
+        raise err from None
     info["seconds"] = time.perf_counter() - t0
     info["source"] = "packed at start-up"
     info["max_overlap_mm"] = packing.max_overlap(kind, h, x, q, radius, length)
