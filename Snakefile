@@ -5,7 +5,10 @@ import sys
 
 from snakemake.utils import min_version, validate
 
-from lbmpipe.cases import estimate_minutes, packing_id
+from pathlib import Path
+
+from lbmpipe.cases import estimate_minutes, packing_id, write_case_scene
+from lbmpipe.statistics import write_case_outputs
 
 min_version("8.0")
 
@@ -25,11 +28,30 @@ PARTICLE_CASES = [c for c in CASES if c not in FLOW_CASES]
 LBMPIPE = f"{sys.executable} -m lbmpipe"
 
 
+# Inputs the document reads beyond figures and claims (the stability table, the study), as
+# patterns of {fidelity}.
+PAPER_EXTRA_INPUTS = [
+    "results/{fidelity}/study/recommendation.json",
+    "results/{fidelity}/study/accuracy_cost.png",
+    "results/{fidelity}/study/cost_model.png",
+]
+
+
+include: "workflow/rules/common.smk"
 include: "workflow/rules/cases.smk"
 include: "workflow/rules/figures.smk"
+include: "workflow/rules/study.smk"
+include: "workflow/rules/paper.smk"
+
+
+report: "workflow/report/workflow.rst"
 
 
 rule all:
+    """Every figure, table, the claims and the document at the default fidelity level."""
     input:
-        expand("results/{fidelity}/figures/fig10_profiles.{ext}", fidelity=FIDELITY, ext=["pdf", "png"]),
-        expand("results/{fidelity}/cases/{case}/summary.json", fidelity=FIDELITY, case=CASES),
+        expand("results/{fidelity}/figures/{fig}.{ext}", fidelity=FIDELITY, fig=FIGURES, ext=["pdf", "png"]),
+        expand("results/{fidelity}/figures/fig3_{case}.png", fidelity=FIDELITY, case=PARTICLE_CASES),
+        expand("results/{fidelity}/tables/{table}.csv", fidelity=FIDELITY, table=TABLES),
+        expand("results/{fidelity}/claims.csv", fidelity=FIDELITY),
+        expand("paper/reproduction_{fidelity}.{ext}", fidelity=FIDELITY, ext=["md", "html"]),

@@ -1,7 +1,16 @@
-"""Figures of the paper, regenerated from run outputs (physical units on every axis)."""
+"""Figures of the paper, regenerated from run outputs (physical units on every axis).
+
+Everything is drawn from the aggregated tables of :mod:`lbmpipe.statistics`
+(``results/<fid>/tables/*.csv``) and the case directories; :func:`make_figures` is the single
+entry point. Cases are picked by their metadata columns (shape, size, concentration, Reynolds
+number, collisions), never by parsing names. A case the figure needs but which is missing from
+the table or did not complete (e.g. status ``unpackable``) is marked with a text at its place
+("not packable", "not run", ...), never dropped silently.
+"""
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import matplotlib
@@ -11,37 +20,529 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
 
+AXES = ("x", "y", "z")
+AXIS_LABELS = (r"$|\Omega_x|$", r"$|\Omega_y|$", r"$|\Omega_z|$")
+OMEGA_YLABEL = "mean angular velocity |Ω| (rad/s)"
+CUBE_MAX_AXIS_ANGLE_DEG = float(np.degrees(np.arccos(1.0 / np.sqrt(3.0))))
+
+FIGURE_CAPTIONS = {
+    "fig3_snapshot": (
+        "Particles at the last sample of a run, drawn in their position and orientation inside the 50 mm pipe "
+        "(z along the pipe axis, mm); colour is the angle between the pipe axis and the cylinder axis "
+        "(nearest cube axis for cubes)."),
+    "fig4_cylinders_re26": (
+        "Mean |Ω| about the lab x, y and z axes (rad/s) of 16x16 mm and 16x24 mm cylinders at 30 % concentration, "
+        "Re 26, over all particles and samples after spin-up; error bars are 95 % confidence half-widths from "
+        "batch means of the particle-averaged time series."),
+    "fig5_cubes8_concentration": (
+        "Mean |Ω| about x, y, z (rad/s) of 8 mm cubes at Re 9.4, 30 % (LC) against 50 % (HC) concentration; "
+        "error bars are 95 % batch-means confidence half-widths."),
+    "fig6_cubes24_reynolds": (
+        "Mean |Ω| about x, y, z (rad/s) of 24 mm cubes at 30 % concentration, Re 9.4 (LF) against Re 26 (HF); "
+        "error bars are 95 % batch-means confidence half-widths."),
+    "fig7a_shape_re9.4": (
+        "Cubes (8, 16, 24 mm) against cylinders of the same size (8x8, 16x16 mm; no 24 mm cylinder in the study), "
+        "30 % concentration, Re 9.4: mean |Ω| about x, y, z (rad/s) with 95 % batch-means confidence half-widths."),
+    "fig7b_shape_re26": (
+        "As Fig. 7a at Re 26: cubes (8, 16, 24 mm) against cylinders 8x8 and 16x16 mm, 30 % concentration, "
+        "mean |Ω| about x, y, z (rad/s) with 95 % batch-means confidence half-widths."),
+    "fig8_cylinder_orientation": (
+        "Distribution of the angle between the cylinder axis and the pipe axis (deg; fraction of particle-samples "
+        "after spin-up per 10 deg bin) for the four cylinder sizes at 30 % concentration, Re 9.4 and Re 26; "
+        "error bars are 95 % batch-means confidence half-widths of the per-sample bin fraction."),
+    "fig9_cube_orientation": (
+        "Cube orientation at 30 % concentration, Re 9.4 and Re 26: top, the in-image angle of the cube projected "
+        "on the x-z plane (camera along y) folded into 0-45 deg, as a camera sees it; bottom, the 3-D angle "
+        "between the pipe axis and the nearest cube axis (0-54.7 deg); fractions per bin with 95 % batch-means "
+        "half-widths."),
+    "fig10_profiles": (
+        "Time-averaged axial fluid velocity against radius (mirrored to the full diameter) at Re 26 without "
+        "particles and with 16x16 mm cylinders at 30 % concentration, against the Hagen-Poiseuille parabola of the "
+        "same flow rate (dashed)."),
+}
+
 
 def save(fig, stem: Path) -> list[Path]:
-    """Write ``stem``.pdf and ``stem``.png."""
+    """Write ``stem``.pdf and ``stem``.png (``stem`` without extension; dots in it are kept)."""
     stem = Path(stem)
     stem.parent.mkdir(parents=True, exist_ok=True)
     out = []
     for ext in ("pdf", "png"):
-        path = stem.with_suffix(f".{ext}")
+        path = stem.parent / f"{stem.name}.{ext}"  # not with_suffix: "re9.4" is no suffix
         fig.savefig(path, dpi=150, bbox_inches="tight")
         out.append(path)
     plt.close(fig)
     return out
 
 
-def velocity_profiles(profiles: dict[str, Path], stem: Path, title: str = "") -> list[Path]:
-    """Fig. 10: axial velocity against radius at the outlet, each run against its parabola.
+# ----------------------------------------------------------------------------------------------
+# helpers
 
-    ``profiles`` maps a legend label to a ``profile.csv`` (columns ``r_mm``, ``uz_m_s``,
-    ``uz_poiseuille_m_s``). The profile is mirrored to the full diameter as in the paper.
+def _table(t) -> pd.DataFrame:
+    """A DataFrame from a DataFrame, a CSV path, or None/missing file (empty frame)."""
+    if isinstance(t, pd.DataFrame):
+        return t
+    if t is None or not Path(t).exists():
+        return pd.DataFrame()
+    try:
+        return pd.read_csv(t)
+    except pd.errors.EmptyDataError:
+        return pd.DataFrame()
+
+
+def _is_true(col: pd.Series) -> pd.Series:
+    return col.astype(str).str.strip().str.lower().isin(("true", "1", "1.0"))
+
+
+def _select(table: pd.DataFrame, shape: str, size_label: str, concentration: float, reynolds: float,
+            collisions: bool = True) -> pd.DataFrame:
+    """Rows of ``table`` matching the case metadata (floats compared with a tolerance)."""
+    need = {"shape", "size_label", "concentration", "reynolds"}
+    if table.empty or not need <= set(table.columns):
+        return table.iloc[0:0]
+    m = (table["shape"] == shape) & (table["size_label"] == size_label)
+    m &= np.isclose(table["concentration"].astype(float), concentration)
+    m &= np.isclose(table["reynolds"].astype(float), reynolds)
+    if "collisions" in table.columns:
+        m &= _is_true(table["collisions"]) == bool(collisions)
+    return table[m]
+
+
+def _status_text(status) -> str:
+    s = str(status) if status is not None and status == status else "not run"
+    return {"unpackable": "not packable", "not run": "not run", "completed": "no samples"}.get(s, s)
+
+
+def _sel(shape, size_label, concentration, reynolds, collisions=True) -> dict:
+    return {"shape": shape, "size_label": size_label, "concentration": concentration, "reynolds": reynolds,
+            "collisions": collisions}
+
+
+def _omega_of(table: pd.DataFrame, crit: dict | None):
+    """``(values (3,), errors (3,), mark)`` of one case: mark is None for a completed case with
+    finite values, else the text to print at its bars."""
+    nan3 = np.full(3, np.nan)
+    if crit is None:
+        return nan3, nan3, "not in study"
+    rows = _select(table, **crit)
+    if rows.empty:
+        return nan3, nan3, "not run"
+    r = rows.iloc[0]
+    v = np.array([float(r[f"omega_{a}"]) for a in AXES])
+    e = np.array([float(r[f"ci_{a}"]) for a in AXES])
+    if r.get("status") != "completed" or not np.all(np.isfinite(v)):
+        return nan3, nan3, _status_text(r.get("status"))
+    return v, e, None
+
+
+def _mark(ax, x, text, y=None):
+    """Write ``text`` vertically at a bar position (a case that has no bar)."""
+    lo, hi = ax.get_ylim()
+    ax.text(x, lo + 0.03 * (hi - lo) if y is None else y, text, rotation=90, ha="center", va="bottom",
+            fontsize=7, color="0.3", style="italic")
+
+
+def _bars(ax, groups: list[str], series: list[tuple[str, np.ndarray, np.ndarray, list]], width=None, hatches=None):
+    """Grouped bars: ``series`` = (label, values (G,), errors (G,), marks (G,) text or None)."""
+    n = len(series)
+    width = width or 0.8 / max(n, 1)
+    x0 = np.arange(len(groups))
+    pending = []
+    for k, (label, vals, errs, marks) in enumerate(series):
+        xs = x0 + (k - (n - 1) / 2) * width
+        yerr = np.where(np.isfinite(errs), errs, 0.0)
+        bad = [m for m in marks if m and m != "not in study"]
+        lab = label if not bad else f"{label} ({', '.join(sorted(set(bad)))})"
+        ax.bar(xs, np.nan_to_num(vals), width * 0.92, yerr=yerr, capsize=2.5, color=f"C{k}", label=lab,
+               hatch=(hatches[k] if hatches else None), edgecolor="k", linewidth=0.4,
+               error_kw={"elinewidth": 0.8})
+        pending += [(x, m) for x, m in zip(xs, marks) if m]
+    ax.set_xticks(x0, groups)
+    tops = [np.nanmax(np.where(np.isfinite(e), v + e, v)) for _, v, e, _ in series if np.isfinite(v).any()]
+    top = max(tops) if tops else 0.0
+    ax.set_ylim(0.0, 1.3 * top if top > 0 else 1.0)  # head-room for the legend
+    for x, m in pending:
+        _mark(ax, x, m)
+
+
+# ----------------------------------------------------------------------------------------------
+# angular velocity bars (Figs. 4-7)
+
+def omega_bars(table, series: list[tuple[str, dict]], stem: Path, title: str = "") -> list[Path]:
+    """Grouped bars of mean ``|Omega_x|, |Omega_y|, |Omega_z|`` (rad/s) with 95 % CI error bars.
+
+    ``table``: ``angular_velocity.csv`` (path or DataFrame). ``series``: (legend label,
+    selection dict with keys shape, size_label, concentration, reynolds, collisions).
     """
+    t = _table(table)
     fig, ax = plt.subplots(figsize=(5.0, 3.6))
-    for k, (label, path) in enumerate(profiles.items()):
-        df = pd.read_csv(path)
-        r = np.concatenate([-df.r_mm[::-1], df.r_mm])
-        u = np.concatenate([df.uz_m_s[::-1], df.uz_m_s])
-        ax.plot(r, u, "-", color=f"C{k}", label=label)
-        ref = np.concatenate([df.uz_poiseuille_m_s[::-1], df.uz_poiseuille_m_s])
-        ax.plot(r, ref, "--", color=f"C{k}", lw=0.9, label=f"{label}: Hagen-Poiseuille")
-    ax.set_xlabel("r (mm)")
-    ax.set_ylabel("axial velocity $u_z$ (m/s)")
+    data = []
+    for label, crit in series:
+        v, e, m = _omega_of(t, crit)
+        data.append((label, v, e, [m] * 3))
+    _bars(ax, list(AXIS_LABELS), data)
+    ax.set_xlabel("rotation axis (lab frame; z = pipe axis)")
+    ax.set_ylabel(OMEGA_YLABEL)
     if title:
         ax.set_title(title, fontsize=9)
     ax.legend(fontsize=7, frameon=False)
     return save(fig, stem)
+
+
+def shape_size_bars(table, reynolds: float, stem: Path, title: str = "", concentration: float = 0.30) -> list[Path]:
+    """Figs. 7a/7b: cubes (8, 16, 24 mm) against cylinders of the same size (8x8, 16x16 mm), one
+    panel per rotation axis, bars grouped by size. The 24 mm cylinder is not in the study and is
+    marked so."""
+    t = _table(table)
+    sizes = [("8 mm", "8 mm", "8x8 mm"), ("16 mm", "16 mm", "16x16 mm"), ("24 mm", "24 mm", None)]
+    cube = [_omega_of(t, _sel("cube", c, concentration, reynolds)) for _, c, _ in sizes]
+    cyl = [_omega_of(t, _sel("cylinder", y, concentration, reynolds) if y else None) for _, _, y in sizes]
+    fig, axs = plt.subplots(1, 3, figsize=(9.0, 3.4))
+    tops = []
+    for j, ax in enumerate(axs):
+        series = []
+        for label, res in (("cube (edge)", cube), ("cylinder (D x L = size)", cyl)):
+            series.append((label, np.array([r[0][j] for r in res]), np.array([r[1][j] for r in res]),
+                           [r[2] for r in res]))
+        _bars(ax, [s[0] for s in sizes], series)
+        tops.append(ax.get_ylim()[1])
+        ax.set_title(f"about {AXES[j]}", fontsize=9)
+        ax.set_xlabel("particle size")
+    for ax in axs:  # one scale for the three axes; the "not ..." marks are re-placed at the bottom
+        ax.set_ylim(0, max(tops))
+    axs[0].set_ylabel(OMEGA_YLABEL)
+    axs[0].legend(fontsize=7, frameon=False)
+    if title:
+        fig.suptitle(title, fontsize=9)
+    fig.tight_layout()
+    return save(fig, stem)
+
+
+# ----------------------------------------------------------------------------------------------
+# orientation histograms (Figs. 8, 9)
+
+def _hist_panel(ax, table: pd.DataFrame, kind: str, series: list[tuple[str, dict]], lo: float, hi: float):
+    """Grouped bars of bin fractions with 95 % CI for each case of ``series``; missing or
+    not-completed cases are marked in the panel and in the legend."""
+    marks = []
+    data = []
+    groups = None
+    for label, crit in series:
+        rows = _select(table, **crit)
+        rows = rows[rows["kind"] == kind] if not rows.empty else rows
+        if not rows.empty:
+            rows = rows.sort_values("bin_lo_deg")
+            if groups is None:
+                groups = [f"{a:.0f}-{b:.0f}" for a, b in zip(rows.bin_lo_deg, rows.bin_hi_deg)]
+        status = rows["status"].iloc[0] if not rows.empty and "status" in rows else None
+        ok = (not rows.empty and (status is None or status == "completed")
+              and np.isfinite(rows["fraction"].astype(float)).any())
+        if ok:
+            data.append((label, rows["fraction"].to_numpy(float), rows["ci95"].to_numpy(float)))
+        else:
+            why = "not run" if rows.empty else _status_text(status)
+            data.append((label, None, why))
+            marks.append(f"{label}: {why}")
+    if groups is None:  # nothing at all: lay out nominal bins so the panel still reads
+        nb = 9
+        e = np.linspace(lo, hi, nb + 1)
+        groups = [f"{a:.0f}-{b:.0f}" for a, b in zip(e[:-1], e[1:])]
+    g = len(groups)
+    series_bars = []
+    for label, frac, ci in data:
+        if frac is None:
+            series_bars.append((label, np.full(g, np.nan), np.full(g, np.nan), [None] * g))
+        else:
+            series_bars.append((label, frac[:g], ci[:g], [None] * g))
+    _bars(ax, groups, series_bars)
+    # legend labels of marked cases carry their status
+    handles, labels = ax.get_legend_handles_labels()
+    labels = [lab if d[1] is not None else f"{lab} ({d[2]})" for lab, d in zip(labels, data)]
+    ax.legend(handles, labels, fontsize=6.5, frameon=False)
+    if marks:
+        ax.text(0.02, 0.97, "\n".join(marks), transform=ax.transAxes, va="top", ha="left", fontsize=7,
+                color="0.3", style="italic")
+    ax.tick_params(axis="x", labelsize=6.5, rotation=45)
+    ax.set_ylabel("fraction of particle-samples")
+    return ax.get_ylim()[1]
+
+
+def cylinder_orientation(table, stem: Path, title: str = "", concentration: float = 0.30,
+                         reynolds: tuple[float, float] = (9.4, 26.0)) -> list[Path]:
+    """Fig. 8: histograms of the cylinder-axis / pipe-axis angle (deg, 0-90) for the four
+    cylinder sizes, one panel per Reynolds number. ``table``: ``tables/orientation.csv``."""
+    t = _table(table)
+    sizes = ["8x8 mm", "8x16 mm", "16x16 mm", "16x24 mm"]
+    fig, axs = plt.subplots(1, len(reynolds), figsize=(10.0, 3.8))
+    axs = np.atleast_1d(axs)
+    tops = []
+    for ax, re in zip(axs, reynolds):
+        tops.append(_hist_panel(ax, t, "cyl_axis_angle",
+                                [(s, _sel("cylinder", s, concentration, re)) for s in sizes], 0.0, 90.0))
+        ax.set_xlabel("angle between cylinder axis and pipe axis (deg)")
+        ax.set_title(f"Re {re:g}, {concentration:.0%} concentration", fontsize=9)
+    for ax in axs:  # one scale for both Reynolds numbers
+        ax.set_ylim(0.0, max(tops))
+    if title:
+        fig.suptitle(title, fontsize=9)
+    fig.tight_layout()
+    return save(fig, stem)
+
+
+def cube_orientation(table, stem: Path, title: str = "", concentration: float = 0.30,
+                     reynolds: tuple[float, float] = (9.4, 26.0)) -> list[Path]:
+    """Fig. 9: cube orientation histograms, one column per Reynolds number; top row the
+    projected (camera) angle folded into 0-45 deg, bottom row the 3-D angle of the nearest cube
+    axis to the pipe axis (0-54.7 deg). ``table``: ``tables/orientation.csv``."""
+    t = _table(table)
+    sizes = ["8 mm", "16 mm", "24 mm"]
+    fig, axs = plt.subplots(2, len(reynolds), figsize=(10.0, 7.0))
+    axs = np.atleast_2d(axs)
+    rows = (("cube_projected_angle", 45.0, "projected angle to pipe axis, camera along y (deg, folded 0-45)"),
+            ("cube_axis_angle", CUBE_MAX_AXIS_ANGLE_DEG, "3-D angle of nearest cube axis to pipe axis (deg)"))
+    for i, (kind, hi, xlabel) in enumerate(rows):
+        tops = []
+        for j, re in enumerate(reynolds):
+            ax = axs[i, j]
+            tops.append(_hist_panel(ax, t, kind, [(f"cube {s}", _sel("cube", s, concentration, re)) for s in sizes],
+                                    0.0, hi))
+            ax.set_xlabel(xlabel, fontsize=8)
+            ax.set_title(f"Re {re:g}, {concentration:.0%} concentration", fontsize=9)
+        for ax in axs[i]:  # one scale per row
+            ax.set_ylim(0.0, max(tops))
+    if title:
+        fig.suptitle(title, fontsize=9)
+    fig.tight_layout()
+    return save(fig, stem)
+
+
+# ----------------------------------------------------------------------------------------------
+# velocity profiles (Fig. 10)
+
+def _profile_state(path) -> tuple[pd.DataFrame | None, str]:
+    """Profile table of a case, or None and the reason it has none."""
+    if path is None or not Path(path).exists():
+        return None, "not run"
+    df = pd.read_csv(path)
+    if df.empty:
+        summ = Path(path).parent / "summary.json"
+        status = None
+        if summ.exists():
+            try:
+                status = json.loads(summ.read_text()).get("status")
+            except ValueError:
+                pass
+        return None, _status_text(status) if status else "no data"
+    return df, ""
+
+
+def velocity_profiles(profiles: dict[str, Path], stem: Path, title: str = "", parabola: str = "each") -> list[Path]:
+    """Fig. 10: axial velocity against radius at the outlet, each run against its parabola.
+
+    ``profiles`` maps a legend label to a ``profile.csv`` (columns ``r_mm``, ``uz_m_s``,
+    ``uz_poiseuille_m_s``). The profile is mirrored to the full diameter as in the paper.
+    ``parabola``: ``"each"`` draws every run's Hagen-Poiseuille reference, ``"first"`` only the
+    first available one (runs at the same flow rate share it). A profile that is missing or
+    empty (case not run, not packable) is listed in the panel with its reason.
+    """
+    fig, ax = plt.subplots(figsize=(5.0, 3.6))
+    marks = []
+    drawn_ref = False
+    for k, (label, path) in enumerate(profiles.items()):
+        df, why = _profile_state(path)
+        if df is None:
+            marks.append(f"{label}: {why}")
+            continue
+        r = np.concatenate([-df.r_mm[::-1], df.r_mm])
+        u = np.concatenate([df.uz_m_s[::-1], df.uz_m_s])
+        ax.plot(r, u, "-", color=f"C{k}", label=label)
+        if parabola == "each" or (parabola == "first" and not drawn_ref):
+            ref = np.concatenate([df.uz_poiseuille_m_s[::-1], df.uz_poiseuille_m_s])
+            ref_label = f"{label}: Hagen-Poiseuille" if parabola == "each" else "Hagen-Poiseuille (same Q)"
+            ax.plot(r, ref, "--", color=f"C{k}" if parabola == "each" else "k", lw=0.9, label=ref_label)
+            drawn_ref = True
+    if marks:
+        ax.text(0.02, 0.03, "\n".join(marks), transform=ax.transAxes, fontsize=7, color="0.3", style="italic")
+    ax.set_xlabel("r (mm)")
+    ax.set_ylabel("axial velocity $u_z$ (m/s)")
+    if title:
+        ax.set_title(title, fontsize=9)
+    if ax.get_legend_handles_labels()[0]:
+        ax.legend(fontsize=7, frameon=False)
+    return save(fig, stem)
+
+
+# ----------------------------------------------------------------------------------------------
+# snapshots (Fig. 3-like)
+
+def _cylinder_faces(d: float, length: float, n: int = 16) -> list[np.ndarray]:
+    """Body-frame polygons of a cylinder (axis = body z): n side quads and two n-gon caps."""
+    th = np.linspace(0.0, 2 * np.pi, n + 1)
+    c, s = 0.5 * d * np.cos(th), 0.5 * d * np.sin(th)
+    h = 0.5 * length
+    quads = np.stack([np.stack([c[:-1], s[:-1], np.full(n, -h)], -1), np.stack([c[1:], s[1:], np.full(n, -h)], -1),
+                      np.stack([c[1:], s[1:], np.full(n, h)], -1), np.stack([c[:-1], s[:-1], np.full(n, h)], -1)], 1)
+    caps = np.stack([np.stack([c[:-1], s[:-1], np.full(n, z)], -1) for z in (-h, h)])
+    return [quads, caps]  # (n, 4, 3) and (2, n, 3)
+
+
+def _cube_faces(edge: float) -> list[np.ndarray]:
+    a = 0.5 * edge
+    faces = []
+    for ax in range(3):
+        for sgn in (-1.0, 1.0):
+            u, v = [(1, 2), (2, 0), (0, 1)][ax]
+            sq = np.zeros((4, 3))
+            sq[:, ax] = sgn * a
+            sq[:, u] = np.array([-a, a, a, -a])
+            sq[:, v] = np.array([-a, -a, a, a])
+            faces.append(sq)
+    return [np.array(faces)]  # (6, 4, 3)
+
+
+def snapshot(case_dir: Path, stem: Path, title: str = "") -> Path:
+    """Fig. 3-like view: the particles of the last sample in 3-D inside the pipe outline, each
+    drawn as a polygon mesh in its position and orientation, coloured by its angle to the pipe
+    axis. Writes ``stem``.png only and returns it. A case without particles to draw (not run,
+    not packable) gets a PNG saying so."""
+    from mpl_toolkits.mplot3d.art3d import Poly3DCollection
+
+    from . import statistics as st
+
+    case_dir, stem = Path(case_dir), Path(stem)
+    fig = plt.figure(figsize=(4.6, 6.4))
+    ax = fig.add_subplot(projection="3d")
+    R, L = 25.0, 100.0
+    th = np.linspace(0, 2 * np.pi, 97)
+    for z in (0.0, L):
+        ax.plot(R * np.cos(th), R * np.sin(th), np.full_like(th, z), color="0.5", lw=0.7)
+    for a in np.linspace(0, 2 * np.pi, 9)[:-1]:
+        ax.plot([R * np.cos(a)] * 2, [R * np.sin(a)] * 2, [0.0, L], color="0.75", lw=0.5)
+    pq, static = case_dir / "particles.parquet", case_dir / "particles_static.csv"
+    summary = {}
+    if (case_dir / "summary.json").exists():
+        try:
+            summary = json.loads((case_dir / "summary.json").read_text())
+        except ValueError:
+            pass
+    df = pd.read_parquet(pq) if pq.exists() else pd.DataFrame()
+    note = ""
+    if df.empty or not static.exists():
+        note = _status_text(summary.get("status", "not run")) if summary.get("status") != "completed" else "no samples"
+    else:
+        t_last = df["t_s"].max()
+        last = df[df["t_s"] == t_last].merge(pd.read_csv(static), on="id", how="left")
+        q = last[["qw", "qx", "qy", "qz"]].to_numpy()
+        A = st.rotation_matrices(q)
+        centre = last[["x_mm", "y_mm", "z_mm"]].to_numpy()
+        polys, values = [], []
+        is_cyl = (last["shape"] == "cylinder").to_numpy()
+        angle = np.where(is_cyl, st.cylinder_axis_angle(q), st.cube_axis_angle(q))
+        # one template per distinct (shape, size): particles of a case share it, so the mesh of all
+        # particles is one broadcast product per template
+        groups = last.reset_index(drop=True).groupby(["shape", "diameter_mm", "length_mm", "edge_mm"],
+                                                      dropna=False).indices
+        for idx in groups.values():
+            sel = np.zeros(len(last), bool)
+            sel[idx] = True
+            r0 = last.iloc[idx[0]]
+            faces = (_cylinder_faces(r0.diameter_mm, r0.length_mm) if r0["shape"] == "cylinder"
+                     else _cube_faces(r0.edge_mm))
+            for f in faces:  # f (F, k, 3) body frame -> (N, F, k, 3) lab frame
+                lab = np.einsum("nij,fkj->nfki", A[sel], f) + centre[sel][:, None, None, :]
+                polys += list(lab.reshape(-1, f.shape[1], 3))
+                values += list(np.repeat(angle[sel], f.shape[0]))
+        cmap = plt.get_cmap("viridis")
+        vmax = 90.0 if is_cyl.all() else (CUBE_MAX_AXIS_ANGLE_DEG if not is_cyl.any() else 90.0)
+        colors = cmap(np.asarray(values) / vmax)
+        coll = Poly3DCollection(polys, facecolors=colors, edgecolors=(0, 0, 0, 0.15), linewidths=0.2)
+        try:  # polygons of unequal length are padded with masked values that break autoscaling
+            ax.add_collection3d(coll, autolim=False)
+        except TypeError:  # matplotlib < 3.10
+            ax.add_collection3d(coll)
+        sm = plt.cm.ScalarMappable(cmap=cmap, norm=plt.Normalize(0, vmax))
+        cb = fig.colorbar(sm, ax=ax, shrink=0.5, pad=0.08)
+        cb.set_label("cylinder axis to pipe axis (deg)" if is_cyl.all() else "nearest cube axis to pipe axis (deg)",
+                     fontsize=8)
+        title = (title + "\n" if title else "") + f"t = {t_last:.2f} s, {len(last)} particles"
+    if note:
+        ax.text(0.0, 0.0, 0.5 * L, note, ha="center", fontsize=12, color="0.3", style="italic")
+    ax.set_xlim(-R, R)
+    ax.set_ylim(-R, R)
+    ax.set_zlim(0, L)
+    ax.set_box_aspect((2 * R, 2 * R, L))
+    ax.set_xlabel("x (mm)", fontsize=8)
+    ax.set_ylabel("y (mm)", fontsize=8)
+    ax.set_zlabel("z (mm)", fontsize=8)
+    ax.tick_params(labelsize=6)
+    ax.view_init(elev=12, azim=-70)
+    if title:
+        ax.set_title(title, fontsize=8)
+    out = stem.parent / f"{stem.name}.png"
+    out.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(out, dpi=150, bbox_inches="tight")
+    plt.close(fig)
+    return out
+
+
+def snapshots(fid_dir: Path, cases: dict, fidelity: str | None = None) -> list[Path]:
+    """``fid_dir/figures/fig3_<case>.png`` for every particle case of the config dict ``cases``."""
+    fid_dir = Path(fid_dir)
+    fidelity = fidelity or fid_dir.name
+    out = []
+    for case, cfg in cases.items():
+        if not (cfg or {}).get("particles"):
+            continue
+        out.append(snapshot(fid_dir / "cases" / case, fid_dir / "figures" / f"fig3_{case}",
+                            title=f"{case}, fidelity {fidelity}"))
+    return out
+
+
+# ----------------------------------------------------------------------------------------------
+# entry point
+
+def make_figures(fid_dir: Path, fidelity: str, cases: dict | None = None) -> list[Path]:
+    """Figs. 4-10 of ``fid_dir`` (``results/<fid>``) from ``tables/angular_velocity.csv``,
+    ``tables/orientation.csv`` and the cases' ``profile.csv``, into ``fid_dir/figures/``:
+    ``fig4_cylinders_re26``, ``fig5_cubes8_concentration``, ``fig6_cubes24_reynolds``,
+    ``fig7a_shape_re9.4``, ``fig7b_shape_re26``, ``fig8_cylinder_orientation``,
+    ``fig9_cube_orientation``, ``fig10_profiles`` (each ``.pdf`` and ``.png``). Returns the paths.
+
+    ``cases`` (the config's case dict, optional) locates Fig. 10's particle-free Re 26 case by its
+    metadata; without it the contract's name ``flow_re26`` is used."""
+    fid_dir = Path(fid_dir)
+    tables, figs = fid_dir / "tables", fid_dir / "figures"
+    av = _table(tables / "angular_velocity.csv")
+    orient = _table(tables / "orientation.csv")
+    lvl = f"fidelity: {fidelity}"
+    out = []
+    out += omega_bars(av, [("cylinder 16x16 mm", _sel("cylinder", "16x16 mm", 0.30, 26.0)),
+                           ("cylinder 16x24 mm", _sel("cylinder", "16x24 mm", 0.30, 26.0))],
+                      figs / "fig4_cylinders_re26", title=f"Fig. 4: cylinders, 30 %, Re 26 ({lvl})")
+    out += omega_bars(av, [("LC (30 %)", _sel("cube", "8 mm", 0.30, 9.4)),
+                           ("HC (50 %)", _sel("cube", "8 mm", 0.50, 9.4))],
+                      figs / "fig5_cubes8_concentration", title=f"Fig. 5: 8 mm cubes, Re 9.4 ({lvl})")
+    out += omega_bars(av, [("LF (Re 9.4)", _sel("cube", "24 mm", 0.30, 9.4)),
+                           ("HF (Re 26)", _sel("cube", "24 mm", 0.30, 26.0))],
+                      figs / "fig6_cubes24_reynolds", title=f"Fig. 6: 24 mm cubes, 30 % ({lvl})")
+    out += shape_size_bars(av, 9.4, figs / "fig7a_shape_re9.4",
+                           title=f"Fig. 7a: cubes vs cylinders, 30 %, Re 9.4 ({lvl})")
+    out += shape_size_bars(av, 26.0, figs / "fig7b_shape_re26",
+                           title=f"Fig. 7b: cubes vs cylinders, 30 %, Re 26 ({lvl})")
+    out += cylinder_orientation(orient, figs / "fig8_cylinder_orientation",
+                                title=f"Fig. 8: cylinder orientation ({lvl})")
+    out += cube_orientation(orient, figs / "fig9_cube_orientation", title=f"Fig. 9: cube orientation ({lvl})")
+    # Fig. 10: the particle case is found by metadata in the table when it is there
+    cyl = _select(av, **_sel("cylinder", "16x16 mm", 0.30, 26.0))
+    cyl_case = cyl["case"].iloc[0] if not cyl.empty else None
+    flow_case = "flow_re26"
+    for name, cfg in (cases or {}).items():
+        cfg = cfg or {}
+        if not cfg.get("particles") and np.isclose(float(cfg.get("reynolds", np.nan)), 26.0):
+            flow_case = name
+            break
+    profiles = {"no particles, Re 26": fid_dir / "cases" / flow_case / "profile.csv",
+                "cylinders 16x16 mm, 30 %, Re 26": (fid_dir / "cases" / cyl_case / "profile.csv") if cyl_case else None}
+    out += velocity_profiles(profiles, figs / "fig10_profiles", title=f"Fig. 10: axial velocity profiles ({lvl})",
+                             parabola="first")
+    return out

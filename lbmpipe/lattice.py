@@ -64,7 +64,7 @@ _CORNERS_PAPER = [(1, 1, 1), (-1, 1, 1), (-1, -1, 1), (1, -1, 1)]  # Table 1: 7,
 
 @lru_cache(maxsize=None)
 def get_lattice(name: str) -> Lattice:
-    """Return the velocity set called ``name`` (``D3Q15``, ``D3Q19`` or ``D3Q27``)."""
+    """Return the velocity set called ``name`` (``D3Q15`` as Table 1 and Eq. (7), ``D3Q19`` or ``D3Q27``)."""
     key = name.upper()
     if key == "D3Q15":
         # Eq. (7) and Table 1.

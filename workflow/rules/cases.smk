@@ -1,26 +1,11 @@
 # Cases: packing -> scene -> simulation. Particle-free cases have no packing.
 
 
-def _packing_input(wildcards):
-    pid = packing_id(config["cases"][wildcards.case])
-    return {} if pid is None else {"packing": f"results/packings/{pid}.csv"}
-
-
-def _packing_info(wildcards):
-    return f"results/packings/{packing_id(config['cases'][wildcards.case])}.json"
-
-
-def _threads(wildcards):
-    return int(config["fidelities"][wildcards.fidelity].get("threads", 2))
-
-
-def _runtime(wildcards):
-    return estimate_minutes(config, wildcards.fidelity, wildcards.case)
-
-
 rule pack:
     """A dense random packing (mm, shared by all levels and both Re): positions and orientations,
     or the record that the target is not reachable (with the highest concentration reached)."""
+    conda:
+        "../envs/lbmpipe.yaml"
     output:
         csv="results/packings/{packing}.csv",
         info="results/packings/{packing}.json",
@@ -34,19 +19,24 @@ rule pack:
 
 
 rule scene:
-    """Write the validated scene of one case at one fidelity level."""
+    """Write the validated scene of one case at one fidelity level (``run:``, inside Snakemake: a
+    YAML file is cheaper to write than a Python process to start)."""
+    conda:
+        "../envs/lbmpipe.yaml"
     input:
         unpack(_packing_input),
     output:
         "results/{fidelity}/cases/{case}/scene.yaml",
     log:
         "results/{fidelity}/logs/{case}.scene.log",
-    script:
-        "../scripts/write_scene.py"
+    run:
+        write_case_scene(config, wildcards.fidelity, wildcards.case, output[0], packing_csv=input.get("packing"))
 
 
 rule simulate_flow:
     """Run one particle-free case with the lbmpipe solver."""
+    conda:
+        "../envs/lbmpipe.yaml"
     input:
         "results/{fidelity}/cases/{case}/scene.yaml",
     output:
@@ -63,13 +53,17 @@ rule simulate_flow:
     resources:
         mem_mb=2000,
         runtime=_runtime,
+    params:
+        lbmpipe=LBMPIPE,
     shell:
-        "NUMBA_NUM_THREADS={threads} {LBMPIPE} run {input} --out $(dirname {output.summary}) --quiet --force > {log} 2>&1"
+        "NUMBA_NUM_THREADS={threads} {params.lbmpipe} run {input} --out $(dirname {output.summary}) --quiet --force > {log} 2>&1"
 
 
 rule simulate_particles:
     """Run one particle case (or record it as not packable); checkpoints let an interrupted run
     resume where it stopped."""
+    conda:
+        "../envs/lbmpipe.yaml"
     input:
         scene="results/{fidelity}/cases/{case}/scene.yaml",
         packing_info=_packing_info,

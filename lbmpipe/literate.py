@@ -1,0 +1,647 @@
+"""The literate reproduction: the paper's equations linked to the code, and the document that puts
+the method, the parameters, the figures, the claims and the costs of one fidelity level together.
+
+Equation links. Docstrings cite the paper's equations by number (``Eq. (N)``, ``Eqs. (N)-(M)``,
+``Eqs. (N), (M)``, ``Eq. (N, M)``); :func:`equation_index` reads them with :mod:`ast` (module,
+class and function docstrings of ``lbmpipe/*.py``), so the index is the code's own statement of
+where each equation lives and cannot drift from it. Each link in the document carries a title
+``"Eq. N: qualname"`` that :func:`check_links` uses to verify that the line still holds that
+definition and that its docstring still cites the equation.
+
+Document. :func:`build_document` renders ``paper/reproduction.md.j2`` (Jinja2) from a results
+directory ``results/<fid>/``. The template receives data only: every number in the text is read
+from the results (or derived from ``config.yaml`` through :func:`lbmpipe.units.derive`); a section
+whose input is absent says ``not built at this level: <file> missing``. An HTML rendering of the
+Markdown is written beside it by a small converter for the subset the template emits (headings,
+paragraphs, pipe tables, lists, images, links, code spans), because no Markdown library is a
+dependency.
+"""
+
+from __future__ import annotations
+
+import ast
+import html
+import json
+import math
+import os
+import re
+from pathlib import Path
+from typing import NamedTuple
+
+N_EQUATIONS = 21
+
+#: The paper's equations as stated in NOTES.md ("Model", "Collision model"), Markdown with inline code.
+EQUATIONS: dict[int, str] = {
+    1: "`∂f_i/∂t + e_i · ∇f_i = Ω_i` (lattice Boltzmann equation)",
+    2: "`Ω_i = -(f_i - f_i^eq) / τ` (BGK collision)",
+    3: "`f_i^eq = ρ w_i [1 + 3 (e_i·u)/c² + 9 (e_i·u)²/(2c⁴) - 3 u²/(2c²)]`, `c = dx/dt`",
+    4: "`ρ = Σ_i f_i`, `ρ u = Σ_i f_i e_i`",
+    5: "weakly compressible Navier-Stokes: `∂ρ/∂t + ∇·(ρu) = 0`, with `P = ρ c_s²`, `c_s² = c²/3`",
+    6: "`∂(ρu)/∂t + ∇·(ρuu) = -∇P + ∇·[ρν(∇u + (∇u)ᵀ)]`, `ν = c² dt (τ - 1/2)/3`",
+    7: "`w_0 = 2/9`, `w_1..6 = 1/9`, `w_7..14 = 1/72` (D3Q15, velocities of Table 1)",
+    8: "`f_i'(x, t+1) = f_i(x, t+) - 2 B_i (e_i · u_b)`, `B_i = 3ρw_i/c²`, "
+       "`u_b = U + Ω × (x + e_i/2 - X)` (Ladd's moving bounce-back)",
+    9: "`F(x + e_i/2, t + 1/2) = 2 e_i [f_i(x, t+) - B_i (e_i · u_b)]` (force on a boundary link)",
+    10: "`T(x + e_i/2, t + 1/2) = (x + e_i/2 - X) × F(x + e_i/2, t + 1/2)` (torque of a link)",
+    11: "`F_p = Σ_links F(x + e_i/2, t + 1/2)` (total force on a particle)",
+    12: "`T_p = Σ_links T(x + e_i/2, t + 1/2)` (total torque on a particle)",
+    13: "`dΩ_x/dt = T_x/I_xx + (I_yy - I_zz) Ω_y Ω_z / I_xx`, and cyclic (Euler's equations, body frame)",
+    14: "orientation as a unit quaternion `q = (q_0, q_1, q_2, q_3)` (Evans 1977), no Euler-angle singularity",
+    15: "quaternion kinematics `dq/dt = ½ q ⊗ (0, Ω_body)`",
+    16: "`m_1 v_1' = m_1 v_1 - I p`, `m_2 v_2' = m_2 v_2 + I p` (collision impulse `I`, normal `p` from 1 to 2)",
+    17: "`k = -(v_1p' - v_2p') / (v_1p - v_2p)` (restitution; normal contact-point velocities)",
+    18: "`J_1 ω_1s' = J_1 ω_1s - l_1s × (I p_s)`, `J_2 ω_2s' = J_2 ω_2s + l_2s × (I p_s)`",
+    19: "`I = m_1 (1+k)(v_1p - v_2p) / {1 + m_1/m_2 + m_1 ([A_1 J_1⁻¹ (l_1s × p_1s)] × l_1)·p "
+        "+ m_1 ([A_2 J_2⁻¹ (l_2s × p_2s)] × l_2)·p}`",
+    20: "`A` = rotation matrix (body → lab) of the particle's quaternion",
+    21: "`I = m_1 (1+k)(-v_1p) / {1 + m_1 ([A_1 J_1⁻¹ (l_1s × p_1s)] × l_1)·p}` (wall: `m_2 → ∞`, `v_2p = 0`)",
+}
+
+#: Section of the paper each equation belongs to (for grouping in the document).
+EQUATION_GROUPS: list[tuple[str, list[int]]] = [
+    ("Fluid: lattice BGK on D3Q15", [1, 2, 3, 4, 5, 6, 7]),
+    ("Moving solid boundaries: Ladd's link bounce-back", [8, 9, 10, 11, 12]),
+    ("Rigid-body rotation", [13, 14, 15]),
+    ("Collisions: instantaneous impulse", [16, 17, 18, 19, 20, 21]),
+]
+
+#: The paper's figure captions, from its text (the OCR of the paper; Fig. 7 has no caption there).
+PAPER_CAPTIONS: dict[str, str] = {
+    "3": "Fig. 3 Pipe flow and coordinate system",
+    "4": "Fig. 4 Effect of cylindrical particle aspect ratio on angular velocity about various axes "
+         "(30% in particle concentration, 26 in Reynolds number)",
+    "5": "Fig. 5 Effect of cubic particle concentration on angular velocity about various axes (9.4 in "
+         "Reynolds number, 8 mm×8 mm in size, LC: 30% particle concentration; HC: 50% particle concentration)",
+    "6": "Fig. 6 Effect of Reynolds number on angular velocity about various axes (30% in particle "
+         "concentration, 24 mm×24 mm in size of cubic particles, LF: Re=9.4; HF: Re=26)",
+    "7a": "Fig. 7a (no caption in the paper's text; the text: \"The effects of particles shape and size on "
+          "angular velocity about various axes are plotted in Figs. 7a and 7b\")",
+    "7b": "Fig. 7b (no caption in the paper's text; see Fig. 7a)",
+    "8": "Fig. 8 Numerical results (a) and experimental results (b) of orientation distribution for "
+         "cylindrical particles (30% in concentration, LF: Re=9.4; HF: Re=26)",
+    "9": "Fig. 9 Numerical results (a) and experimental results (b) of orientation distribution for cubic "
+         "particles (30% in particle concentration, LF: Re=9.4; HF: Re=26)",
+    "10": "Fig. 10 Velocity profiles with and without cylindrical particles at the outlet of pipe (30% in "
+          "concentration, 26 in Reynolds number, 16 mm×16 mm in size)",
+}
+
+#: Our caption when ``lbmpipe.figures.FIGURE_CAPTIONS`` has none (NOTES.md, "Figures to regenerate").
+FALLBACK_CAPTIONS: dict[str, str] = {
+    "3": "Snapshot of the particles in the pipe (case in the file name).",
+    "4": "Mean |angular velocity| (rad/s) about x, y, z: cylinders 16x16 and 16x24 mm, 30 %, Re 26.",
+    "5": "Mean |angular velocity| (rad/s) about x, y, z: 8 mm cubes, Re 9.4, 30 % (LC) and 50 % (HC).",
+    "6": "Mean |angular velocity| (rad/s) about x, y, z: 24 mm cubes, 30 %, Re 9.4 (LF) and Re 26 (HF).",
+    "7a": "Shape and size: cubes 8/16/24 mm and cylinders 8x8/16x16 mm, 30 %, Re 9.4 (our choice of cases).",
+    "7b": "Shape and size: cubes 8/16/24 mm and cylinders 8x8/16x16 mm, 30 %, Re 26 (our choice of cases).",
+    "8": "Distribution of the angle between the cylinder axis and the pipe axis, 30 %, Re 9.4 and Re 26.",
+    "9": "Distribution of the cube orientation angle folded into 0-45 degrees, 30 %, Re 9.4 and Re 26.",
+    "10": "Time-averaged axial velocity against radius, against the Hagen-Poiseuille parabola (dashed).",
+}
+
+#: The paper's statement of its computing cost ("It almost takes 24 h to make the statistical average
+#: ... reach a relatively steady state"), per case.
+PAPER_HOURS_PER_CASE = 24.0
+
+#: Where the paper is silent or inconsistent and the code decides (NOTES.md); ``{...}`` fields are
+#: filled from the config so that no number is typed here.
+DECISIONS: list[tuple[str, str]] = [
+    ("Viscosity", "The two flow rates imply different viscosities; ν is taken from the Reynolds number "
+                  "(`Re = U D / ν`, `U = Q / A`), not from a fluid property (NOTES.md, Parameters)."),
+    ("Driving", "Periodic inlet and outlet: the flow is driven by a body force (pressure gradient) that a "
+                "controller adjusts to hold the mixture flow rate Q (`lbmpipe.effects`)."),
+    ("Time step at Re 26", "The paper's dt gives a centre-line Mach number near the limit of the scheme "
+                           "at Re 26; every level multiplies dt there by {re26_dt_factors} (config "
+                           "`re26_dt_factor`); the parameter table shows the resulting τ and Mach."),
+    ("Coarser levels", "Levels coarser than the paper's lattice keep the paper's Mach number (dt ∝ dx, "
+                       "acoustic scaling); τ then follows from Re (`lbmpipe.cases`)."),
+    ("Angular-velocity statistic", "Not defined by the paper: the mean of |Ω_x|, |Ω_y|, |Ω_z| in the lab "
+                                   "frame over particles and samples after spin-up, with a 95 % confidence "
+                                   "interval from batch means."),
+    ("Cube orientation", "The experiment saw 2-D projections: the projected angle folded into 0-45 degrees "
+                         "is reported, and also the 3-D angle between the pipe axis and the nearest cube "
+                         "axis (0-54.7 degrees)."),
+    ("Fig. 7 cases", "The text does not say which cases Figs. 7a/7b show; we take 30 %, (a) Re 9.4, "
+                     "(b) Re 26, cubes 8/16/24 mm and cylinders 8x8/16x16 mm."),
+    ("Quaternion convention", "Any consistent convention is allowed (Eqs. (14)-(15)); ours is "
+                              "`dq/dt = ½ q ⊗ (0, Ω_body)`, body → lab, pinned by the tests."),
+    ("Restitution", "Collisions are \"instantaneous and elastic\": k = 1, kept a parameter (Eq. (17))."),
+    ("Unreachable concentrations", "A packing that cannot reach its target is reported as not packable "
+                                   "with the concentration it reached; a different concentration is never "
+                                   "run silently."),
+    ("Experimental data", "The values of Zitoun et al. are not in our text and are never invented; a figure "
+                          "shows them only from a data file whose source is stated."),
+]
+
+
+class Ref(NamedTuple):
+    """Where an equation is implemented: file relative to the repository, qualified name
+    (``<module>`` for a module docstring), line of the ``def``/``class`` (1 for a module)."""
+
+    module: str
+    qualname: str
+    line: int
+
+
+_NUM = r"\d+[a-z]?"
+_GROUP = rf"\(\s*{_NUM}(?:\s*,\s*{_NUM})*\s*\)"
+_CITE = re.compile(rf"\bEqs?\.\s*({_GROUP}(?:\s*(?:-|–|—|,|and|to)\s*{_GROUP})*)")
+_PART = re.compile(rf"({_GROUP})|(-|–|—|to)")
+
+
+def cited_equations(text: str) -> set[int]:
+    """Equation numbers a docstring cites: ``Eq. (N)``, ``Eq. (Na)`` (a sub-equation counts as N),
+    ``Eqs. (N)-(M)`` (a range), ``Eqs. (N), (M)``, ``Eqs. (N) and (M)``, ``Eq. (N, M)``."""
+    out: set[int] = set()
+    for m in _CITE.finditer(text or ""):
+        prev: int | None = None
+        pending_range = False
+        for part in _PART.finditer(m.group(1)):
+            if part.group(2):
+                pending_range = True
+                continue
+            nums = [int(re.match(r"\d+", s.strip()).group()) for s in part.group(1).strip("() ").split(",")]
+            if pending_range and prev is not None:
+                out.update(range(min(prev, nums[0]), max(prev, nums[0]) + 1))
+            out.update(nums)
+            prev = nums[-1]
+            pending_range = False
+    return out
+
+
+def _docstring_owners(tree: ast.Module):
+    """(qualname, node, docstring) of the module, its classes and functions (nested too)."""
+    yield "<module>", tree, ast.get_docstring(tree, clean=False)
+
+    def walk(node, prefix):
+        for child in ast.iter_child_nodes(node):
+            if isinstance(child, (ast.FunctionDef, ast.AsyncFunctionDef, ast.ClassDef)):
+                qual = f"{prefix}{child.name}"
+                yield qual, child, ast.get_docstring(child, clean=False)
+                yield from walk(child, qual + ".")
+
+    yield from walk(tree, "")
+
+
+def equation_index(package_dir: Path) -> dict[int, list[Ref]]:
+    """Equation number -> the places whose docstring cites it, from ``package_dir/*.py``.
+
+    Functions and classes come before module docstrings, each group in file and line order; the
+    module path is relative to the repository (the parent of ``package_dir``)."""
+    package_dir = Path(package_dir).resolve()
+    root = package_dir.parent
+    index: dict[int, list[Ref]] = {}
+    for path in sorted(package_dir.glob("*.py")):
+        tree = ast.parse(path.read_text(encoding="utf-8"), filename=str(path))
+        rel = path.relative_to(root).as_posix()
+        for qual, node, doc in _docstring_owners(tree):
+            line = 1 if qual == "<module>" else node.lineno
+            for n in cited_equations(doc or ""):
+                index.setdefault(n, []).append(Ref(rel, qual, line))
+    for refs in index.values():
+        refs.sort(key=lambda r: (r.qualname == "<module>", r.module, r.line))
+    return dict(sorted(index.items()))
+
+
+def _link(ref: Ref, eq: int, repo_root: Path, out_dir: Path) -> str:
+    target = os.path.relpath(Path(repo_root).resolve() / ref.module, Path(out_dir).resolve()).replace(os.sep, "/")
+    return f'[{ref.module}:L{ref.line}]({target}#L{ref.line} "Eq. {eq}: {ref.qualname}")'
+
+
+_LINK = re.compile(r'\[[^\]]*\]\(([^)\s#]+\.py)#L(\d+)(?:\s+"Eq\. (\d+): ([^"]+)")?\)')
+
+
+def _owner_at(tree: ast.Module, line: int, qualname: str):
+    for qual, node, doc in _docstring_owners(tree):
+        if qual == qualname and (1 if qual == "<module>" else node.lineno) == line:
+            return node, doc
+    return None, None
+
+
+def check_links(md_path: Path, repo_root: Path) -> list[str]:
+    """Stale source links of a rendered document: the file is gone, the line is past its end, the
+    line no longer holds the cited ``def``/``class`` (or the module docstring), or that docstring
+    no longer cites the equation. One message per stale link; an empty list means all are fresh."""
+    md_path = Path(md_path)
+    repo_root = Path(repo_root).resolve()
+    problems: list[str] = []
+    trees: dict[Path, ast.Module | None] = {}
+    for m in _LINK.finditer(md_path.read_text(encoding="utf-8")):
+        rel, line = m.group(1), int(m.group(2))
+        target = (md_path.parent / rel).resolve()
+        shown = target.relative_to(repo_root).as_posix() if target.is_relative_to(repo_root) else str(target)
+        if not target.is_file():
+            problems.append(f"{shown}#L{line}: file missing")
+            continue
+        if target not in trees:
+            try:
+                trees[target] = ast.parse(target.read_text(encoding="utf-8"))
+            except SyntaxError:
+                trees[target] = None
+        tree = trees[target]
+        n_lines = len(target.read_text(encoding="utf-8").splitlines())
+        if line > n_lines:
+            problems.append(f"{shown}#L{line}: past the end of the file ({n_lines} lines)")
+            continue
+        if m.group(3) is None:
+            continue  # a plain source link: existence and range are all it claims
+        eq, qual = int(m.group(3)), m.group(4)
+        if tree is None:
+            problems.append(f"{shown}#L{line}: file does not parse")
+            continue
+        node, doc = _owner_at(tree, line, qual)
+        if node is None:
+            problems.append(f"{shown}#L{line}: line no longer holds {qual} (Eq. ({eq}))")
+        elif eq not in cited_equations(doc or ""):
+            problems.append(f"{shown}#L{line}: docstring of {qual} no longer cites Eq. ({eq})")
+    return problems
+
+
+# --------------------------------------------------------------------------------------------------
+# document data
+
+
+def _read_csv(path: Path):
+    import pandas as pd
+
+    try:
+        return pd.read_csv(path)
+    except (FileNotFoundError, pd.errors.EmptyDataError):
+        return None
+
+
+def fmt(x, digits: int = 3) -> str:
+    """A number for the text: ``digits`` significant digits, integers as integers, NaN as an en dash."""
+    if x is None:
+        return "–"
+    if isinstance(x, bool):
+        return "yes" if x else "no"
+    if isinstance(x, int):
+        return str(x)
+    try:
+        v = float(x)
+    except (TypeError, ValueError):
+        return str(x)
+    if math.isnan(v):
+        return "–"
+    if math.isinf(v):
+        return "∞" if v > 0 else "-∞"
+    if v == int(v) and abs(v) < 1e6:
+        return str(int(v))
+    if v != 0 and (abs(v) < 1e-3 or abs(v) >= 1e6):
+        return f"{v:.{digits - 1}e}"
+    return f"{v:.{digits}g}" if abs(v) >= 10 ** (digits - 1) else f"{float(f'{v:.{digits}g}'):g}"
+
+
+def _cell(v) -> str:
+    return fmt(v).replace("|", "\\|").replace("\n", " ")
+
+
+def table_of(df, columns: list[str] | None = None) -> dict:
+    """A DataFrame as ``{"columns": [...], "rows": [[str, ...], ...]}`` for the template."""
+    cols = [c for c in (columns or list(df.columns)) if c in df.columns]
+    return {"columns": cols, "rows": [[_cell(v) for v in row] for row in df[cols].itertuples(index=False)]}
+
+
+def method_section(repo_root: Path, out_dir: Path) -> tuple[list[dict], list[int]]:
+    """Equation groups with each equation's statement and its source links; and the equations that
+    no docstring cites (the document states them as missing)."""
+    index = equation_index(Path(repo_root) / "lbmpipe")
+    groups = []
+    for title, numbers in EQUATION_GROUPS:
+        eqs = []
+        for n in numbers:
+            refs = index.get(n, [])
+            code = [r for r in refs if r.qualname != "<module>"] or refs
+            links = [{"name": r.qualname if r.qualname != "<module>" else f"{r.module} (module)",
+                      "link": _link(r, n, repo_root, out_dir)} for r in code]
+            eqs.append({"number": n, "text": EQUATIONS[n], "links": links,
+                        "refs_md": "; ".join(f"`{lk['name']}` {lk['link']}" for lk in links)})
+        groups.append({"title": title, "equations": eqs})
+    return groups, [n for n in range(1, N_EQUATIONS + 1) if n not in index]
+
+
+def parameter_rows(config: dict) -> tuple[list[dict], list[str]]:
+    """Derived lattice values of the particle-free pipe at each fidelity level and Reynolds number
+    (``lbmpipe.cases.case_scene`` -> ``Scene`` -> ``lbmpipe.units.derive``)."""
+    from .cases import FLOWS, case_scene
+    from .scene import Scene, SceneError
+    from .units import derive
+
+    rows, errors = [], []
+    for fid_name, fid in (config.get("fidelities") or {}).items():
+        for re_ in sorted(FLOWS):
+            try:
+                data = case_scene(f"flow_re{re_:g}", {"reynolds": re_}, fid_name, fid)
+                scene = Scene.model_validate(data)
+                p = derive(scene)
+            except (SceneError, ValueError) as exc:
+                errors.append(f"{fid_name}, Re {fmt(re_)}: {exc}")
+                continue
+            rows.append({
+                "fidelity": fid_name, "reynolds": fmt(re_), "flow_rate": fmt(FLOWS[re_], 4),
+                "dx_mm": fmt(scene.numerics.dx_mm), "dt_ms": fmt(scene.numerics.dt_s * 1e3),
+                "shape": " × ".join(str(s) for s in p.shape), "nu_m2_s": fmt(p.units.viscosity_phys(p.nu_lu))
+                if hasattr(p.units, "viscosity_phys") else fmt(p.nu_lu * p.units.dx_m**2 / p.units.dt_s),
+                "nu_lu": fmt(p.nu_lu), "tau": fmt(p.tau), "u_max_lu": fmt(p.u_max_lu), "mach": fmt(p.mach_max),
+                "steps": fmt(p.n_steps), "spinup_steps": fmt(p.spinup_steps),
+                "duration_s": fmt(scene.run.duration_s),
+            })
+    return rows, errors
+
+
+def case_rows(config: dict, fid_dir: Path) -> list[dict]:
+    """The config's case matrix with, where the results have them, the achieved concentration and
+    the status (``tables/packing.csv``, ``cases/<case>/summary.json``)."""
+    packing = _read_csv(Path(fid_dir) / "tables" / "packing.csv")
+    pk = {} if packing is None else {r["case"]: r for r in packing.to_dict("records")}
+    rows = []
+    for name, case in (config.get("cases") or {}).items():
+        p = case.get("particles") or {}
+        size = (f"{fmt(p['diameter_mm'])} × {fmt(p['length_mm'])}" if p.get("shape") == "cylinder"
+                else fmt(p["edge_mm"]) if p.get("shape") == "cube" else "–")
+        summary_path = Path(fid_dir) / "cases" / name / "summary.json"
+        status = "not run"
+        achieved = pk.get(name, {}).get("concentration_achieved")
+        if summary_path.is_file():
+            s = json.loads(summary_path.read_text())
+            status = s.get("status", "?")
+            if achieved is None:
+                achieved = (s.get("particles") or {}).get("concentration_achieved")
+        rows.append({"case": name, "reynolds": fmt(case["reynolds"]), "shape": p.get("shape", "none"),
+                     "size_mm": size,
+                     "target": fmt(100 * p["concentration"]) if "concentration" in p else "–",
+                     "achieved": fmt(100 * achieved) if achieved is not None else "–",
+                     "collisions": fmt(bool(case.get("collisions", True))) if p else "–",
+                     "status": status})
+    return rows
+
+
+def _figure_key(stem: str) -> str:
+    m = re.match(r"fig(\d+[ab]?)", stem)
+    return m.group(1) if m else stem
+
+
+def _our_caption(stem: str) -> tuple[str, str]:
+    """Our caption for a figure file stem and where it came from."""
+    key = _figure_key(stem)
+    try:
+        from . import figures
+
+        caps = getattr(figures, "FIGURE_CAPTIONS", None)
+    except Exception:  # a broken figures module must not stop the document
+        caps = None
+    if caps:
+        for k in (stem, f"fig{key}", key, key.rstrip("ab") if key[:-1].isdigit() else None):
+            if k is not None and k in caps:
+                return str(caps[k]), "lbmpipe.figures.FIGURE_CAPTIONS"
+    return FALLBACK_CAPTIONS.get(key, "(no caption)"), "fallback (lbmpipe.literate)"
+
+
+def _fig_sort(stem: str):
+    m = re.match(r"fig(\d+)([ab]?)", stem)
+    return (int(m.group(1)), m.group(2), stem) if m else (999, "", stem)
+
+
+def figure_entries(fid_dir: Path, out_dir: Path) -> list[dict]:
+    fig_dir = Path(fid_dir) / "figures"
+    out = []
+    for png in sorted(fig_dir.glob("fig*.png"), key=lambda p: _fig_sort(p.stem)):
+        key = _figure_key(png.stem)
+        ours, source = _our_caption(png.stem)
+        pdf = png.with_suffix(".pdf")
+        out.append({"key": key, "stem": png.stem,
+                    "image": os.path.relpath(png.resolve(), Path(out_dir).resolve()).replace(os.sep, "/"),
+                    "pdf": os.path.relpath(pdf.resolve(), Path(out_dir).resolve()).replace(os.sep, "/")
+                    if pdf.is_file() else None,
+                    "ours": ours, "ours_source": source,
+                    "paper": PAPER_CAPTIONS.get(key.rstrip("ab") if key not in PAPER_CAPTIONS else key,
+                                                "(no such figure in the paper)")})
+    return out
+
+
+def _rel(path: Path, fid_dir: Path) -> str:
+    return Path(path).relative_to(Path(fid_dir)).as_posix()
+
+
+def runtime_section(fid_dir: Path, fidelity: str) -> dict:
+    """Run cost per case (this level) and per level (every ``results/<level>/tables/runtime.csv``
+    beside this one), beside the paper's hours per case."""
+    fid_dir = Path(fid_dir)
+    df = _read_csv(fid_dir / "tables" / "runtime.csv")
+    sec = {"paper_hours": fmt(PAPER_HOURS_PER_CASE), "cases": None, "levels": []}
+    if df is not None:
+        d = df.copy()
+        if "wall_s" in d:
+            d["wall_h"] = d["wall_s"] / 3600.0
+            d["fraction_of_paper"] = d["wall_h"] / PAPER_HOURS_PER_CASE
+        sec["cases"] = table_of(d, ["case", "status", "steps", "simulated_s", "wall_s", "wall_h", "s_per_step",
+                                    "mlups", "particles", "max_rss_mb", "fraction_of_paper"])
+    for level_dir in sorted(p for p in fid_dir.parent.iterdir() if p.is_dir()) if fid_dir.parent.is_dir() else []:
+        lv = _read_csv(level_dir / "tables" / "runtime.csv")
+        if lv is None or "wall_s" not in lv or len(lv) == 0:
+            continue
+        ran = lv[lv["status"].astype(str) != "unpackable"] if "status" in lv else lv
+        w = ran["wall_s"].astype(float)
+        sec["levels"].append({"level": level_dir.name, "cases": fmt(len(ran)),
+                              "total_h": fmt(w.sum() / 3600.0), "median_case_h": fmt(w.median() / 3600.0),
+                              "max_case_h": fmt(w.max() / 3600.0),
+                              "median_vs_paper": fmt(w.median() / 3600.0 / PAPER_HOURS_PER_CASE),
+                              "this": level_dir.name == fidelity})
+    return sec
+
+
+def study_section(fid_dir: Path, out_dir: Path) -> dict:
+    """The accuracy-cost study: its Markdown reports (``study/*.md``, generated from its CSVs), any
+    CSV without a report as a table, and its figures."""
+    sdir = Path(fid_dir) / "study"
+    sec = {"present": sdir.is_dir(), "reports": [], "tables": [], "figures": []}
+    if not sdir.is_dir():
+        return sec
+    mds = sorted(sdir.glob("*.md"))
+    for md in mds:
+        text = md.read_text(encoding="utf-8")
+        # Demote the report's headings below the document's section level.
+        text = re.sub(r"^(#+)", lambda m: "###" + m.group(1), text, flags=re.M)
+        sec["reports"].append({"file": _rel(md, fid_dir), "text": text.strip()})
+    covered = {md.stem for md in mds}
+    for csv in sorted(sdir.glob("*.csv")):
+        if csv.stem in covered:
+            continue
+        df = _read_csv(csv)
+        if df is not None:
+            sec["tables"].append({"file": _rel(csv, fid_dir), "table": table_of(df.head(60)),
+                                  "truncated": len(df) > 60, "rows": fmt(len(df))})
+    for png in sorted(sdir.glob("*.png")):
+        sec["figures"].append({"file": _rel(png, fid_dir),
+                               "image": os.path.relpath(png.resolve(), Path(out_dir).resolve()).replace(os.sep, "/")})
+    return sec
+
+
+def build_context(repo_root: Path, fid_dir: Path, fidelity: str, config: dict, out_md: Path) -> dict:
+    """Everything the template shows, read from the results and the config (no literal numbers)."""
+    repo_root, fid_dir, out_dir = Path(repo_root), Path(fid_dir), Path(out_md).parent
+    groups, uncited = method_section(repo_root, out_dir)
+    params, param_errors = parameter_rows(config)
+    fids = config.get("fidelities") or {}
+    decisions = []
+    factors = sorted({fmt(f.get("re26_dt_factor", 1.0)) for f in fids.values()}) or ["1"]
+    for title, text in DECISIONS:
+        decisions.append({"title": title, "text": text.format(re26_dt_factors=" / ".join(factors))})
+
+    claims = _read_csv(fid_dir / "claims.csv")
+    claims_ctx = None
+    if claims is not None:
+        counts = claims["verdict"].value_counts().to_dict() if "verdict" in claims else {}
+        claims_ctx = {"table": table_of(claims, ["claim", "statement", "statistic", "values", "verdict", "reason"]),
+                      "counts": [{"verdict": k, "n": fmt(int(v))} for k, v in sorted(counts.items())]}
+        claims_ctx["counts_md"] = ", ".join(f"{c['n']} {c['verdict']}" for c in claims_ctx["counts"])
+    stability = _read_csv(fid_dir / "tables" / "stability.csv")
+    fid_cfg = fids.get(fidelity, {})
+    return {
+        "fidelity": fidelity,
+        "fid_dir": _rel_to(fid_dir, repo_root),
+        "level_md": ", ".join(f"`{k}` = {fmt(v)}" for k, v in fid_cfg.items() if not isinstance(v, dict))
+                    or "(not in config.yaml)",
+        "level_run_md": ", ".join(f"`{k}` = {fmt(v)}" for k, v in (fid_cfg.get("run") or {}).items()) or "–",
+        "equation_groups": groups,
+        "uncited_equations": uncited,
+        "parameters": params,
+        "parameter_errors": param_errors,
+        "cases": case_rows(config, fid_dir),
+        "figures": figure_entries(fid_dir, out_dir),
+        "decisions": decisions,
+        "claims": claims_ctx,
+        "stability": table_of(stability) if stability is not None else None,
+        "study": study_section(fid_dir, out_dir),
+        "runtime": runtime_section(fid_dir, fidelity),
+        "missing": lambda rel: f"not built at this level: `{_rel_to(fid_dir, repo_root)}/{rel}` missing",
+    }
+
+
+def _rel_to(path: Path, root: Path) -> str:
+    try:
+        return Path(path).resolve().relative_to(Path(root).resolve()).as_posix()
+    except ValueError:
+        return Path(path).as_posix()
+
+
+def build_document(repo_root: Path, fid_dir: Path, fidelity: str, config: dict, out_md: Path) -> Path:
+    """Render ``paper/reproduction.md.j2`` for the results in ``fid_dir`` (``results/<fidelity>``)
+    into ``out_md``, and its HTML beside it (``.html``). Links are relative to ``out_md``'s folder.
+    Returns ``out_md``."""
+    import jinja2
+
+    repo_root, out_md = Path(repo_root), Path(out_md)
+    out_md.parent.mkdir(parents=True, exist_ok=True)
+    env = jinja2.Environment(loader=jinja2.FileSystemLoader(str(repo_root / "paper")),
+                             undefined=jinja2.StrictUndefined, keep_trailing_newline=True,
+                             trim_blocks=True, lstrip_blocks=True, autoescape=False)
+    env.filters["fmt"] = fmt
+    text = env.get_template("reproduction.md.j2").render(**build_context(repo_root, fid_dir, fidelity, config, out_md))
+    text = re.sub(r"\n{3,}", "\n\n", text)
+    out_md.write_text(text, encoding="utf-8")
+    out_md.with_suffix(".html").write_text(markdown_to_html(text, title=f"lbmpipe reproduction ({fidelity})"),
+                                           encoding="utf-8")
+    return out_md
+
+
+# --------------------------------------------------------------------------------------------------
+# minimal Markdown -> HTML (the subset the template emits)
+
+
+def _inline(s: str) -> str:
+    parts = re.split(r"(`[^`]*`)", s)
+    out = []
+    for p in parts:
+        if p.startswith("`") and p.endswith("`") and len(p) >= 2:
+            out.append(f"<code>{html.escape(p[1:-1])}</code>")
+            continue
+        p = html.escape(p, quote=False)
+        p = re.sub(r'!\[([^\]]*)\]\(([^)\s]+)\)', r'<img src="\2" alt="\1" style="max-width:100%">', p)
+        p = re.sub(r'\[([^\]]*)\]\(([^)\s]+)(?:\s+"([^"]*)")?\)',
+                   lambda m: f'<a href="{m.group(2).replace(".md", ".html") if m.group(2).endswith(".md") else m.group(2)}"'
+                             + (f' title="{m.group(3)}"' if m.group(3) else "") + f">{m.group(1)}</a>", p)
+        p = re.sub(r"\*\*([^*]+)\*\*", r"<strong>\1</strong>", p)
+        p = re.sub(r"(?<![\w*])\*([^*\s][^*]*)\*(?![\w*])", r"<em>\1</em>", p)
+        out.append(p)
+    return "".join(out)
+
+
+def _split_row(line: str) -> list[str]:
+    cells = re.split(r"(?<!\\)\|", line.strip().strip("|"))
+    return [c.strip().replace("\\|", "|") for c in cells]
+
+
+def markdown_to_html(text: str, title: str = "") -> str:
+    """HTML of the Markdown subset used by the template: ATX headings, paragraphs, ``-`` lists,
+    pipe tables, block quotes, fenced code, images, links (with titles), ``code``, **bold**."""
+    lines = text.splitlines()
+    body: list[str] = []
+    i = 0
+    para: list[str] = []
+
+    def flush():
+        if para:
+            body.append(f"<p>{_inline(' '.join(para))}</p>")
+            para.clear()
+
+    while i < len(lines):
+        line = lines[i]
+        if line.startswith("```"):
+            flush()
+            j = i + 1
+            while j < len(lines) and not lines[j].startswith("```"):
+                j += 1
+            body.append("<pre><code>" + html.escape("\n".join(lines[i + 1:j])) + "</code></pre>")
+            i = j + 1
+            continue
+        m = re.match(r"^(#{1,6})\s+(.*)$", line)
+        if m:
+            flush()
+            level = len(m.group(1))
+            anchor = re.sub(r"[^a-z0-9]+", "-", m.group(2).lower()).strip("-")
+            body.append(f'<h{level} id="{anchor}">{_inline(m.group(2))}</h{level}>')
+            i += 1
+            continue
+        if line.startswith("|") and i + 1 < len(lines) and re.match(r"^\|?\s*:?-{3,}", lines[i + 1]):
+            flush()
+            head = _split_row(line)
+            rows = []
+            i += 2
+            while i < len(lines) and lines[i].startswith("|"):
+                rows.append(_split_row(lines[i]))
+                i += 1
+            body.append("<table><thead><tr>" + "".join(f"<th>{_inline(c)}</th>" for c in head) + "</tr></thead><tbody>"
+                        + "".join("<tr>" + "".join(f"<td>{_inline(c)}</td>" for c in r) + "</tr>" for r in rows)
+                        + "</tbody></table>")
+            continue
+        if re.match(r"^\s*[-*]\s+", line):
+            flush()
+            items = []
+            while i < len(lines) and (re.match(r"^\s*[-*]\s+", lines[i]) or (lines[i].startswith("  ") and items)):
+                if re.match(r"^\s*[-*]\s+", lines[i]):
+                    items.append(re.sub(r"^\s*[-*]\s+", "", lines[i]))
+                else:
+                    items[-1] += " " + lines[i].strip()
+                i += 1
+            body.append("<ul>" + "".join(f"<li>{_inline(it)}</li>" for it in items) + "</ul>")
+            continue
+        if line.startswith(">"):
+            flush()
+            quote = []
+            while i < len(lines) and lines[i].startswith(">"):
+                quote.append(lines[i].lstrip("> "))
+                i += 1
+            body.append(f"<blockquote>{_inline(' '.join(quote))}</blockquote>")
+            continue
+        if not line.strip():
+            flush()
+        else:
+            para.append(line.strip())
+        i += 1
+    flush()
+    style = ("body{font-family:sans-serif;max-width:60em;margin:2em auto;line-height:1.4}"
+             "table{border-collapse:collapse;font-size:90%}td,th{border:1px solid #bbb;padding:2px 6px;vertical-align:top}"
+             "code{background:#f4f4f4}blockquote{color:#444;border-left:3px solid #ccc;margin-left:0;padding-left:1em}")
+    return (f"<!DOCTYPE html>\n<html><head><meta charset=\"utf-8\"><title>{html.escape(title)}</title>"
+            f"<style>{style}</style></head><body>\n" + "\n".join(body) + "\n</body></html>\n")

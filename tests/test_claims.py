@@ -1,0 +1,201 @@
+"""The paper's 14 claims judged from results tables (lbmpipe.claims), on small synthetic tables that
+follow the pipeline contract: the verdict follows the data, never the claim."""
+
+import json
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from lbmpipe import claims
+
+AV_COLUMNS = ["case", "shape", "size_label", "diameter_mm", "length_mm", "edge_mm", "concentration", "reynolds",
+              "collisions", "status", "concentration_achieved", "n_particles", "samples",
+              "omega_x", "omega_y", "omega_z", "ci_x", "ci_y", "ci_z"]
+
+
+def cube(edge, c, re, **extra):
+    return {"reynolds": re, "particles": {"shape": "cube", "edge_mm": edge, "concentration": c}, **extra}
+
+
+def cyl(d, l, c, re, **extra):
+    return {"reynolds": re, "particles": {"shape": "cylinder", "diameter_mm": d, "length_mm": l, "concentration": c},
+            **extra}
+
+
+def av_row(name, case, omega, ci, status="completed"):
+    p = case["particles"]
+    return {"case": name, "shape": p["shape"], "size_label": "", "diameter_mm": p.get("diameter_mm", np.nan),
+            "length_mm": p.get("length_mm", np.nan), "edge_mm": p.get("edge_mm", np.nan),
+            "concentration": p["concentration"], "reynolds": case["reynolds"],
+            "collisions": case.get("collisions", True), "status": status,
+            "concentration_achieved": p["concentration"], "n_particles": 10, "samples": 100,
+            **{f"omega_{a}": (w if status == "completed" else np.nan) for a, w in zip("xyz", omega)},
+            **{f"ci_{a}": (c if status == "completed" else np.nan) for a, c in zip("xyz", ci)}}
+
+
+def write_av(fid_dir, rows):
+    (fid_dir / "tables").mkdir(parents=True, exist_ok=True)
+    pd.DataFrame(rows, columns=AV_COLUMNS).to_csv(fid_dir / "tables" / "angular_velocity.csv", index=False)
+
+
+CUBE_CASES = {"cube8_c30_re9.4": cube(8, 0.30, 9.4), "cube8_c50_re9.4": cube(8, 0.50, 9.4)}
+
+
+def claim_row(fid_dir, cases, k):
+    df = claims.evaluate_claims(fid_dir, cases)
+    return df[df["claim"] == k].iloc[0]
+
+
+def cube_table(tmp_path, low, high, ci):
+    write_av(tmp_path, [av_row("cube8_c30_re9.4", CUBE_CASES["cube8_c30_re9.4"], low, [ci] * 3),
+                        av_row("cube8_c50_re9.4", CUBE_CASES["cube8_c50_re9.4"], high, [ci] * 3)])
+
+
+def test_claim4_reproduced_when_every_cube_rotation_clearly_falls_from_30_to_50_percent(tmp_path):
+    cube_table(tmp_path, [1.2, 1.1, 0.8], [0.6, 0.55, 0.5], 0.05)
+    row = claim_row(tmp_path, CUBE_CASES, 4)
+    assert row.verdict == "reproduced", row.reason
+    assert "cube8_c30_re9.4 vs cube8_c50_re9.4 [x]" in row["values"]
+
+
+def test_claim4_contradicted_when_cube_rotations_clearly_rise_with_concentration(tmp_path):
+    cube_table(tmp_path, [0.6, 0.55, 0.5], [1.2, 1.1, 0.8], 0.05)
+    row = claim_row(tmp_path, CUBE_CASES, 4)
+    assert row.verdict == "contradicted"
+    assert "likely" in row.reason
+
+
+def test_claim4_inconclusive_when_the_confidence_intervals_overlap(tmp_path):
+    cube_table(tmp_path, [1.0, 1.0, 0.8], [0.95, 0.97, 0.78], 0.1)
+    row = claim_row(tmp_path, CUBE_CASES, 4)
+    assert row.verdict == "inconclusive"
+    assert "overlap" in row.reason
+
+
+def test_claim4_inconclusive_with_a_single_significantly_reversed_axis(tmp_path):
+    # x and y fall clearly, z rises clearly: "all rotations fall" does not hold
+    cube_table(tmp_path, [1.2, 1.2, 0.5], [0.6, 0.6, 0.9], 0.05)
+    row = claim_row(tmp_path, CUBE_CASES, 4)
+    assert row.verdict == "inconclusive"
+    assert "mixed" in row.reason
+
+
+def test_claim4_inconclusive_and_names_the_case_when_50_percent_was_not_packable(tmp_path):
+    write_av(tmp_path, [av_row("cube8_c30_re9.4", CUBE_CASES["cube8_c30_re9.4"], [1.2, 1.1, 0.8], [0.05] * 3),
+                        av_row("cube8_c50_re9.4", CUBE_CASES["cube8_c50_re9.4"], [0, 0, 0], [0] * 3,
+                               status="unpackable")])
+    case_dir = tmp_path / "cases" / "cube8_c50_re9.4"
+    case_dir.mkdir(parents=True)
+    (case_dir / "summary.json").write_text(json.dumps(
+        {"status": "unpackable", "packing": {"concentration_reached": 0.284}}))
+    row = claim_row(tmp_path, CUBE_CASES, 4)
+    assert row.verdict == "inconclusive"
+    assert "cube8_c50_re9.4: not packable" in row.reason and "28.4 %" in row.reason
+
+
+def test_claim4_inconclusive_when_a_case_was_not_run(tmp_path):
+    write_av(tmp_path, [av_row("cube8_c30_re9.4", CUBE_CASES["cube8_c30_re9.4"], [1.2, 1.1, 0.8], [0.05] * 3)])
+    row = claim_row(tmp_path, CUBE_CASES, 4)
+    assert row.verdict == "inconclusive"
+    assert "cube8_c50_re9.4: not in tables/angular_velocity.csv (not run)" in row.reason
+
+
+def test_every_claim_inconclusive_with_reason_when_no_table_was_built(tmp_path):
+    path = claims.write_claims(tmp_path, {**CUBE_CASES, "cyl16x16_c30_re26": cyl(16, 16, 0.3, 26.0)})
+    df = pd.read_csv(path)
+    assert list(df.columns) == claims.COLUMNS and list(df["claim"]) == list(range(1, 15))
+    assert (df["verdict"] == "inconclusive").all()
+    assert df["reason"].str.contains("missing|no case|not run").all()
+
+
+def test_claim1_cylinders_spinning_more_about_z_than_x_y_contradict_it(tmp_path):
+    cases = {"cyl16x16_c30_re26": cyl(16, 16, 0.3, 26.0)}
+    write_av(tmp_path, [av_row("cyl16x16_c30_re26", cases["cyl16x16_c30_re26"], [0.5, 0.5, 1.5], [0.05] * 3)])
+    assert claim_row(tmp_path, cases, 1).verdict == "contradicted"
+    write_av(tmp_path, [av_row("cyl16x16_c30_re26", cases["cyl16x16_c30_re26"], [1.5, 1.4, 0.5], [0.05] * 3)])
+    assert claim_row(tmp_path, cases, 1).verdict == "reproduced"
+
+
+def test_claim5_cube_components_closer_at_50_percent_by_relative_spread(tmp_path):
+    # 30 %: components spread by a factor two; 50 %: all equal (CV 0), both well resolved
+    cube_table(tmp_path, [1.2, 1.2, 0.6], [0.5, 0.5, 0.5], 0.02)
+    assert claim_row(tmp_path, CUBE_CASES, 5).verdict == "reproduced"
+    cube_table(tmp_path, [0.9, 0.9, 0.9], [0.6, 0.6, 0.3], 0.02)
+    assert claim_row(tmp_path, CUBE_CASES, 5).verdict == "contradicted"
+
+
+def write_orientation_summary(fid_dir, rows):
+    (fid_dir / "tables").mkdir(parents=True, exist_ok=True)
+    pd.DataFrame([{"case": c, "kind": k, "status": "completed", "mean_deg": m, "ci95_deg": ci, "median_deg": m}
+                  for c, k, m, ci in rows]).to_csv(fid_dir / "tables" / "orientation_summary.csv", index=False)
+
+
+PAIR14 = {claims.ALIGN_CASE: cyl(8, 16, 0.3, 9.4), claims.ALIGN_NOCOLL_CASE: cyl(8, 16, 0.3, 9.4, collisions=False)}
+
+
+@pytest.mark.parametrize("with_coll, without, verdict", [(55.0, 40.0, "reproduced"), (40.0, 55.0, "contradicted"),
+                                                          (50.0, 49.0, "inconclusive")])
+def test_claim14_colliding_cylinders_align_less_only_if_their_mean_angle_is_larger(tmp_path, with_coll, without,
+                                                                                   verdict):
+    write_orientation_summary(tmp_path, [(claims.ALIGN_CASE, "cyl_axis_angle", with_coll, 2.0),
+                                         (claims.ALIGN_NOCOLL_CASE, "cyl_axis_angle", without, 2.0)])
+    assert claim_row(tmp_path, PAIR14, 14).verdict == verdict
+
+
+def test_claim12_equivalence_margin_decides_no_effect_of_reynolds_on_cubes(tmp_path):
+    cases = {"cube8_c30_re9.4": cube(8, 0.3, 9.4), "cube8_c30_re26": cube(8, 0.3, 26.0)}
+    write_orientation_summary(tmp_path, [("cube8_c30_re9.4", "cube_projected_angle", 22.0, 0.5),
+                                         ("cube8_c30_re26", "cube_projected_angle", 22.5, 0.5)])
+    assert claim_row(tmp_path, cases, 12).verdict == "reproduced"
+    write_orientation_summary(tmp_path, [("cube8_c30_re9.4", "cube_projected_angle", 15.0, 0.5),
+                                         ("cube8_c30_re26", "cube_projected_angle", 28.0, 0.5)])
+    assert claim_row(tmp_path, cases, 12).verdict == "contradicted"
+    write_orientation_summary(tmp_path, [("cube8_c30_re9.4", "cube_projected_angle", 20.0, 5.0),
+                                         ("cube8_c30_re26", "cube_projected_angle", 22.0, 5.0)])
+    assert claim_row(tmp_path, cases, 12).verdict == "inconclusive"
+
+
+def write_histogram(fid_dir, case, fractions, ci):
+    (fid_dir / "tables").mkdir(parents=True, exist_ok=True)
+    edges = np.linspace(0.0, 45.0, len(fractions) + 1)
+    pd.DataFrame({"case": case, "kind": "cube_projected_angle", "status": "completed", "bin_lo_deg": edges[:-1],
+                  "bin_hi_deg": edges[1:], "fraction": fractions, "ci95": ci}).to_csv(
+        fid_dir / "tables" / "orientation.csv", index=False)
+
+
+def test_claim11_uniform_cube_angles_reproduce_no_preference_and_a_peak_contradicts_it(tmp_path):
+    cases = {"cube8_c30_re9.4": cube(8, 0.3, 9.4)}
+    write_histogram(tmp_path, "cube8_c30_re9.4", np.full(9, 1 / 9), 0.005)
+    assert claim_row(tmp_path, cases, 11).verdict == "reproduced"
+    peaked = np.full(9, 0.5 / 8)
+    peaked[0] = 0.5
+    write_histogram(tmp_path, "cube8_c30_re9.4", peaked, 0.005)
+    row = claim_row(tmp_path, cases, 11)
+    assert row.verdict == "contradicted" and "bin 0-5 deg" in row.reason
+    write_histogram(tmp_path, "cube8_c30_re9.4", np.full(9, 1 / 9), 0.1)  # no resolution
+    assert claim_row(tmp_path, cases, 11).verdict == "inconclusive"
+
+
+def write_profile(fid_dir, case, u, u_ref):
+    d = fid_dir / "cases" / case
+    d.mkdir(parents=True, exist_ok=True)
+    r = np.linspace(0.5, 24.5, len(u))
+    pd.DataFrame({"r_mm": r, "uz_m_s": u, "uz_poiseuille_m_s": u_ref, "nodes": np.round(8 * r)}).to_csv(
+        d / "profile.csv", index=False)
+    (d / "summary.json").write_text(json.dumps({"status": "completed"}))
+
+
+def test_claim13_a_flattened_profile_with_particles_differs_greatly_from_the_parabola(tmp_path):
+    cases = {claims.PROFILE_REFERENCE: {"reynolds": 26.0}, claims.PROFILE_CASE: cyl(16, 16, 0.3, 26.0)}
+    r = np.linspace(0.5, 24.5, 25)
+    parabola = 0.32 * (1 - (r / 25.0) ** 2)
+    write_profile(tmp_path, claims.PROFILE_REFERENCE, parabola * 1.01, parabola)
+    plug = np.where(r < 20, 0.2, 0.2 * (25 - r) / 5)
+    write_profile(tmp_path, claims.PROFILE_CASE, plug, parabola)
+    row = claim_row(tmp_path, cases, 13)
+    assert row.verdict == "reproduced"
+    d_par = claims.rel_l2(r, plug, parabola, np.round(8 * r))
+    assert f"vs parabola: {d_par:.3g}" in row["values"]
+    write_profile(tmp_path, claims.PROFILE_CASE, parabola * 1.005, parabola)
+    assert claim_row(tmp_path, cases, 13).verdict == "contradicted"

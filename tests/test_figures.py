@@ -1,0 +1,162 @@
+"""Figures: every figure is written from the aggregated tables, and a case that is missing or
+not packable is marked where its bars would be instead of silently disappearing."""
+
+import json
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from lbmpipe import figures as F
+from lbmpipe import statistics as S
+from lbmpipe.rigid import quat_from_axis_angle
+
+FIG_STEMS = ["fig4_cylinders_re26", "fig5_cubes8_concentration", "fig6_cubes24_reynolds", "fig7a_shape_re9.4",
+             "fig7b_shape_re26", "fig8_cylinder_orientation", "fig9_cube_orientation", "fig10_profiles"]
+
+
+def _texts(fig) -> str:
+    """All text drawn in a figure: titles, labels, legends, annotations."""
+    out = []
+    for t in fig.findobj(match=lambda a: hasattr(a, "get_text")):
+        out.append(t.get_text())
+    return "\n".join(out)
+
+
+@pytest.fixture
+def captured(monkeypatch):
+    """Record the text of every figure passed to ``save``, then save it as usual."""
+    seen = {}
+    real = F.save
+
+    def spy(fig, stem):
+        seen[str(stem).rsplit("/", 1)[-1]] = _texts(fig)
+        return real(fig, stem)
+
+    monkeypatch.setattr(F, "save", spy)
+    return seen
+
+
+def _synthetic_tables(fid):
+    """Aggregated tables of a small synthetic study: all cases the figures use, except that
+    16x24 mm cylinders at Re 26 are missing (not run) and 24 mm cubes at Re 26 are unpackable."""
+    rng = np.random.default_rng(0)
+    av, orient = [], []
+    specs = []
+    for re in (9.4, 26.0):
+        for d, ln in ((8, 8), (8, 16), (16, 16), (16, 24)):
+            specs.append(("cylinder", f"{d}x{ln} mm", d, ln, np.nan, 0.3, re))
+        for e in (8, 16, 24):
+            specs.append(("cube", f"{e} mm", np.nan, np.nan, e, 0.3, re))
+    specs.append(("cube", "8 mm", np.nan, np.nan, 8, 0.5, 9.4))
+    for shape, label, d, ln, e, c, re in specs:
+        if shape == "cylinder" and label == "16x24 mm" and re == 26.0:
+            continue  # not run: absent from every table
+        case = f"{shape}{label.replace(' mm', '')}_c{int(c * 100)}_re{re:g}"
+        unpackable = shape == "cube" and label == "24 mm" and re == 26.0
+        status = "unpackable" if unpackable else "completed"
+        w = np.full(3, np.nan) if unpackable else rng.uniform(0.2, 2.0, 3)
+        ci = np.full(3, np.nan) if unpackable else 0.1 * w
+        av.append({"case": case, "shape": shape, "size_label": label, "diameter_mm": d, "length_mm": ln,
+                   "edge_mm": e, "concentration": c, "reynolds": re, "collisions": True, "status": status,
+                   "concentration_achieved": 0.28 if unpackable else c, "n_particles": 0 if unpackable else 10,
+                   "samples": 0 if unpackable else 50, "omega_x": w[0], "omega_y": w[1], "omega_z": w[2],
+                   "ci_x": ci[0], "ci_y": ci[1], "ci_z": ci[2]})
+        for kind, hi, nb in S.ORIENTATION_KINDS[shape]:
+            edges = np.linspace(0, hi, nb + 1)
+            f = np.full(nb, np.nan) if unpackable else rng.dirichlet(np.ones(nb))
+            for k in range(nb):
+                orient.append({"case": case, "shape": shape, "size_label": label, "concentration": c, "reynolds": re,
+                               "collisions": True, "status": status, "kind": kind, "bin_lo_deg": edges[k],
+                               "bin_hi_deg": edges[k + 1], "fraction": f[k], "ci95": 0.02 if not unpackable else np.nan})
+    (fid / "tables").mkdir(parents=True)
+    pd.DataFrame(av).to_csv(fid / "tables" / "angular_velocity.csv", index=False)
+    pd.DataFrame(orient).to_csv(fid / "tables" / "orientation.csv", index=False)
+    r = np.linspace(0.5, 24.5, 13)
+    for case, u in (("flow_re26", 0.32 * (1 - (r / 25) ** 2)), ("cylinder16x16_c30_re26", 0.2 + 0 * r)):
+        (fid / "cases" / case).mkdir(parents=True)
+        pd.DataFrame({"r_mm": r, "uz_m_s": u, "uz_poiseuille_m_s": 0.32 * (1 - (r / 25) ** 2),
+                      "nodes": 8}).to_csv(fid / "cases" / case / "profile.csv", index=False)
+
+
+def test_make_figures_writes_every_figure_and_marks_missing_and_unpackable_cases(tmp_path, captured):
+    fid = tmp_path / "smoke"
+    _synthetic_tables(fid)
+    paths = F.make_figures(fid, "smoke")
+    names = {p.name for p in paths}
+    for stem in FIG_STEMS:
+        for ext in ("pdf", "png"):
+            assert f"{stem}.{ext}" in names
+            assert (fid / "figures" / f"{stem}.{ext}").stat().st_size > 1000
+    assert "not run" in captured["fig4_cylinders_re26"]  # 16x24 at Re 26 absent from the table
+    assert "not packable" in captured["fig6_cubes24_reynolds"]  # 24 mm cubes at Re 26
+    assert "not packable" in captured["fig7b_shape_re26"] and "not in study" in captured["fig7b_shape_re26"]
+    assert "not run" in captured["fig8_cylinder_orientation"]
+    assert "not packable" in captured["fig9_cube_orientation"]
+    assert "not packable" not in captured["fig5_cubes8_concentration"]
+    for stem in FIG_STEMS:
+        assert "smoke" in captured[stem]  # the fidelity level is named
+    assert "rad/s" in captured["fig4_cylinders_re26"] and "(deg" in captured["fig8_cylinder_orientation"]
+    assert "m/s" in captured["fig10_profiles"] and "(mm)" in captured["fig10_profiles"]
+    assert set(FIG_STEMS) <= set(F.FIGURE_CAPTIONS)
+
+
+def test_make_figures_without_any_table_still_draws_every_figure_marked_not_run(tmp_path, captured):
+    paths = F.make_figures(tmp_path / "empty", "quick")
+    assert len(paths) == 2 * len(FIG_STEMS)
+    for stem in FIG_STEMS:
+        assert "not run" in captured[stem], stem
+
+
+def test_velocity_profiles_keeps_its_signature_and_draws_each_parabola(tmp_path, captured):
+    r = np.linspace(0.5, 24.5, 5)
+    p = tmp_path / "profile.csv"
+    pd.DataFrame({"r_mm": r, "uz_m_s": 1 - (r / 25) ** 2, "uz_poiseuille_m_s": 1 - (r / 25) ** 2,
+                  "nodes": 4}).to_csv(p, index=False)
+    out = F.velocity_profiles({"flow_re9.4": p}, tmp_path / "fig10_profiles", title="t")
+    assert [q.name for q in out] == ["fig10_profiles.pdf", "fig10_profiles.png"]
+    assert "flow_re9.4: Hagen-Poiseuille" in captured["fig10_profiles"]
+
+
+def _snapshot_case(case_dir, shape, n, status="completed"):
+    case_dir.mkdir(parents=True)
+    rows = []
+    for t in (0.0, 0.1):
+        for i in range(n if status == "completed" else 0):
+            q = quat_from_axis_angle(np.array([1.0, 0.0, 0.0]), 0.3 * i)
+            rows.append({"t_s": t, "id": i, "x_mm": 10.0 * np.cos(i), "y_mm": 10.0 * np.sin(i), "z_mm": 20.0 * i + 10,
+                         "qw": q[0], "qx": q[1], "qy": q[2], "qz": q[3]})
+    pd.DataFrame(rows, columns=["t_s", "id", "x_mm", "y_mm", "z_mm", "qw", "qx", "qy", "qz"]).to_parquet(
+        case_dir / "particles.parquet", index=False)
+    st = pd.DataFrame({"id": np.arange(n), "shape": shape, "diameter_mm": 8.0 if shape == "cylinder" else np.nan,
+                       "length_mm": 16.0 if shape == "cylinder" else np.nan,
+                       "edge_mm": 8.0 if shape == "cube" else np.nan, "density_kg_m3": 1000.0, "fixed": False})
+    st.to_csv(case_dir / "particles_static.csv", index=False)
+    (case_dir / "summary.json").write_text(json.dumps({"status": status}))
+
+
+def test_snapshots_draw_one_png_per_particle_case_including_unpackable(tmp_path):
+    fid = tmp_path / "smoke"
+    _snapshot_case(fid / "cases" / "cyl_re9.4", "cylinder", 4)
+    _snapshot_case(fid / "cases" / "cube", "cube", 3)
+    _snapshot_case(fid / "cases" / "cube_hc", "cube", 3, status="unpackable")
+    cases = {"flow_re26": {"reynolds": 26},
+             "cyl_re9.4": {"reynolds": 9.4, "particles": {"shape": "cylinder", "diameter_mm": 8, "length_mm": 16,
+                                                          "concentration": 0.3}},
+             "cube": {"reynolds": 9.4, "particles": {"shape": "cube", "edge_mm": 8, "concentration": 0.3}},
+             "cube_hc": {"reynolds": 9.4, "particles": {"shape": "cube", "edge_mm": 8, "concentration": 0.5}}}
+    out = F.snapshots(fid, cases)
+    assert [p.name for p in out] == ["fig3_cyl_re9.4.png", "fig3_cube.png", "fig3_cube_hc.png"]
+    assert all(p.stat().st_size > 1000 for p in out)
+
+
+def test_cylinder_mesh_is_closed_around_its_axis_and_cube_faces_lie_on_the_cube():
+    side, caps = F._cylinder_faces(8.0, 16.0, n=12)
+    assert side.shape == (12, 4, 3) and caps.shape == (2, 12, 3)
+    np.testing.assert_allclose(np.hypot(side[..., 0], side[..., 1]), 4.0)
+    np.testing.assert_allclose(np.abs(side[..., 2]), 8.0)
+    (cube,) = F._cube_faces(8.0)
+    assert cube.shape == (6, 4, 3)
+    # each face has one coordinate pinned at +-4 and spans the other two
+    assert np.all(np.sum(np.isclose(np.abs(cube), 4.0), axis=2) == 3)
+    np.testing.assert_allclose(np.sort(cube.reshape(-1, 3).max(axis=0)), [4.0, 4.0, 4.0])

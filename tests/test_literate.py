@@ -1,0 +1,184 @@
+"""The literate reproduction (lbmpipe.literate): every equation of the paper is linked to the code
+that implements it, the links stay true, and the document is built from results alone."""
+
+import ast
+import re
+import shutil
+from pathlib import Path
+
+import pandas as pd
+import pytest
+import yaml
+
+from lbmpipe import claims, literate
+from lbmpipe.cases import case_scene
+from lbmpipe.scene import Scene
+from lbmpipe.units import derive
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+@pytest.fixture(scope="module")
+def index():
+    return literate.equation_index(REPO / "lbmpipe")
+
+
+def test_every_equation_of_the_paper_is_cited_by_a_function_or_class_docstring(index):
+    missing = [n for n in range(1, literate.N_EQUATIONS + 1)
+               if not any(r.qualname != "<module>" for r in index.get(n, []))]
+    assert missing == []
+    assert sorted(literate.EQUATIONS) == list(range(1, literate.N_EQUATIONS + 1))
+
+
+def test_every_equation_reference_is_a_definition_whose_docstring_cites_it(index):
+    files = {}
+    for n, refs in index.items():
+        for ref in refs:
+            if ref.module not in files:
+                source = (REPO / ref.module).read_text()
+                tree = ast.parse(source)
+                defs = {nd.lineno: nd for nd in ast.walk(tree)
+                        if isinstance(nd, (ast.FunctionDef, ast.AsyncFunctionDef, ast.ClassDef))}
+                files[ref.module] = (source.splitlines(), tree, defs)
+            lines, tree, defs = files[ref.module]
+            if ref.qualname == "<module>":
+                assert ref.line == 1
+                doc = ast.get_docstring(tree, clean=False)
+            else:
+                name = ref.qualname.rsplit(".", 1)[-1]
+                assert re.match(rf"\s*(async\s+def|def|class)\s+{re.escape(name)}\b", lines[ref.line - 1]), ref
+                doc = ast.get_docstring(defs[ref.line], clean=False)
+            assert n in literate.cited_equations(doc), (n, ref)
+
+
+def test_citation_forms_single_range_list_pair_and_subequation_are_read():
+    cite = literate.cited_equations
+    assert cite("Ladd's rule, Eq. (8).") == {8}
+    assert cite("coupling, Eqs. (8)-(12), then") == {8, 9, 10, 11, 12}
+    assert cite("Eqs. (14), (15) and Eqs. (16) and (18)") == {14, 15, 16, 18}
+    assert cite("recovers Navier-Stokes (Eq. (5, 6))") == {5, 6}
+    assert cite("Euler, Eq. (13a)") == {13}
+    assert cite("Table 1 (not an equation), equation (3) without the abbreviation") == set()
+
+
+def test_number_format_keeps_three_significant_digits_and_marks_missing_values():
+    assert literate.fmt(1.7812) == "1.78"
+    assert literate.fmt(0.000123456) == "1.23e-04"
+    assert literate.fmt(2000.0) == "2000"
+    assert literate.fmt(float("nan")) == "–"
+
+
+# ---------------------------------------------------------------- a synthetic results tree
+
+
+@pytest.fixture(scope="module")
+def config():
+    return yaml.safe_load((REPO / "config.yaml").read_text())
+
+
+def synthetic_level(fid_dir: Path, config: dict) -> None:
+    """A small results tree following the pipeline contract: tables, one figure, runtimes."""
+    cases = config["cases"]
+    tables = fid_dir / "tables"
+    tables.mkdir(parents=True)
+    rows = []
+    for k, (name, case) in enumerate(n_c for n_c in cases.items() if "particles" in n_c[1]):
+        p = case["particles"]
+        rows.append({"case": name, "shape": p["shape"], "size_label": "", "diameter_mm": p.get("diameter_mm"),
+                     "length_mm": p.get("length_mm"), "edge_mm": p.get("edge_mm"),
+                     "concentration": p["concentration"], "reynolds": case["reynolds"],
+                     "collisions": case.get("collisions", True), "status": "completed",
+                     "concentration_achieved": p["concentration"], "n_particles": 10, "samples": 50,
+                     "omega_x": 1.0 + 0.01 * k, "omega_y": 1.0, "omega_z": 0.5, "ci_x": 0.05, "ci_y": 0.05,
+                     "ci_z": 0.05})
+    pd.DataFrame(rows).to_csv(tables / "angular_velocity.csv", index=False)
+    pd.DataFrame({"case": list(cases), "status": "completed", "steps": 1000, "simulated_s": 2.0,
+                  "wall_s": 7654.0, "s_per_step": 0.5, "mlups": 3.21, "particles": 10,
+                  "max_rss_mb": 300.0}).to_csv(tables / "runtime.csv", index=False)
+    figs = fid_dir / "figures"
+    figs.mkdir()
+    # a 1x1 PNG is all the document needs; it does not look inside
+    (figs / "fig4_cylinders.png").write_bytes(bytes.fromhex(
+        "89504e470d0a1a0a0000000d4948445200000001000000010806000000"
+        "1f15c4890000000d49444154789c6360000002000154a24f5d0000000049454e44ae426082"))
+    claims.write_claims(fid_dir, cases)
+
+
+@pytest.fixture
+def document(tmp_path, config):
+    fid_dir = tmp_path / "results" / "synthetic"
+    synthetic_level(fid_dir, config)
+    out = literate.build_document(REPO, fid_dir, "paper", config, fid_dir / "paper" / "reproduction.md")
+    return out, fid_dir
+
+
+def test_rendered_document_has_no_stale_links_and_links_every_equation(document):
+    out, _ = document
+    assert literate.check_links(out, REPO) == []
+    text = out.read_text()
+    for n in range(1, literate.N_EQUATIONS + 1):
+        assert f'"Eq. {n}: ' in text, n
+    assert out.with_suffix(".html").read_text().count("<table>") >= 3
+
+
+def test_document_numbers_come_from_the_results_and_the_derived_lattice(document, config):
+    out, fid_dir = document
+    text = out.read_text()
+    fid = config["fidelities"]["paper"]
+    params = derive(Scene.model_validate(case_scene("flow_re26", {"reynolds": 26}, "paper", fid)))
+    row = next(line for line in text.splitlines() if line.startswith("| **paper** | 26 |"))
+    assert f"| {literate.fmt(params.tau)} |" in row and f"| {literate.fmt(params.mach_max)} |" in row
+    assert f"| {literate.fmt(params.n_steps)} |" in row
+    # runtime: 7654 s per case from runtime.csv, reported in hours and against the paper's 24 h
+    assert literate.fmt(7654.0 / 3600) in text and literate.fmt(7654.0 / 3600 / 24.0) in text
+    verdicts = pd.read_csv(fid_dir / "claims.csv")["verdict"]
+    assert all(f"| {v} |" in text for v in verdicts)
+    assert "![fig4_cylinders](../figures/fig4_cylinders.png)" in text
+    assert literate.PAPER_CAPTIONS["4"] in text
+
+
+def test_sections_without_input_say_they_were_not_built(tmp_path, config):
+    fid_dir = tmp_path / "results" / "empty"
+    fid_dir.mkdir(parents=True)
+    out = literate.build_document(REPO, fid_dir, "smoke", config, fid_dir / "reproduction.md")
+    text = out.read_text()
+    for rel in ("claims.csv", "tables/stability.csv", "tables/runtime.csv", "study/", "figures/fig*.png"):
+        assert re.search(rf"not built at this level: `[^`]*/{re.escape(rel)}` missing", text), rel
+    assert literate.check_links(out, REPO) == []
+
+
+def copy_repo(dst: Path) -> Path:
+    shutil.copytree(REPO / "lbmpipe", dst / "lbmpipe", ignore=shutil.ignore_patterns("__pycache__"))
+    shutil.copytree(REPO / "paper", dst / "paper")
+    return dst
+
+
+def test_check_links_reports_links_whose_definition_moved_or_no_longer_cites_the_equation(tmp_path, config):
+    repo = copy_repo(tmp_path / "repo")
+    fid_dir = repo / "results" / "synthetic"
+    fid_dir.mkdir(parents=True)
+    out = literate.build_document(repo, fid_dir, "smoke", config, fid_dir / "reproduction.md")
+    assert literate.check_links(out, repo) == []
+    links = re.findall(r'\]\(([^)\s]+\.py)#L(\d+) "Eq\. (\d+): ([^"]+)"\)', out.read_text())
+    by_file = {}
+    for rel, line, eq, qual in links:
+        by_file.setdefault(Path(rel).name, []).append((int(line), int(eq), qual))
+
+    # shift every definition of lattice.py down by one line
+    lattice = repo / "lbmpipe" / "lattice.py"
+    lattice.write_text("\n" + lattice.read_text())
+    stale = literate.check_links(out, repo)
+    assert stale and all(s.startswith("lbmpipe/lattice.py#L") and "no longer holds" in s for s in stale)
+    assert len(stale) == len(by_file["lattice.py"])
+
+    # the line still holds the definition but its docstring stops citing the equation
+    lattice.write_text(lattice.read_text()[1:].replace("Table 1 and Eq. (7)", "Table 1"))
+    stale = literate.check_links(out, repo)
+    line = next(ln for ln, eq, qual in by_file["lattice.py"] if qual == "get_lattice")
+    assert f"lbmpipe/lattice.py#L{line}: docstring of get_lattice no longer cites Eq. (7)" in stale
+    assert all(s.startswith("lbmpipe/lattice.py") for s in stale)
+
+    # a file that is gone
+    (repo / "lbmpipe" / "observables.py").unlink()
+    stale = literate.check_links(out, repo)
+    assert any(s.startswith("lbmpipe/observables.py#L") and s.endswith("file missing") for s in stale)

@@ -1,0 +1,285 @@
+"""Per-case statistics: batch-means confidence intervals of correlated series, the |Omega|
+statistic with spin-up removed, orientation angles of known rotations, and the aggregated tables."""
+
+import json
+import math
+
+import numpy as np
+import pandas as pd
+import pytest
+from scipy.signal import lfilter
+
+from lbmpipe import statistics as S
+from lbmpipe.rigid import quat_from_axis_angle, quat_mul, rotate
+
+PARQUET_COLUMNS = ["t_s", "id", "x_mm", "y_mm", "z_mm", "vx_m_s", "vy_m_s", "vz_m_s", "qw", "qx", "qy", "qz",
+                   "wx_rad_s", "wy_rad_s", "wz_rad_s", "fx_N", "fy_N", "fz_N", "tx_N_m", "ty_N_m", "tz_N_m"]
+
+
+def _q(axis, deg):
+    return quat_from_axis_angle(np.asarray(axis, float), math.radians(deg))
+
+
+def _ar1(phi, n, reps, mean, rng):
+    """``reps`` AR(1) series x_t = phi x_{t-1} + e_t started in the stationary state."""
+    e = rng.standard_normal((reps, n))
+    e[:, 0] /= math.sqrt(1 - phi * phi)
+    return mean + lfilter([1.0], [1.0, -phi], e, axis=1)
+
+
+def write_case(case_dir, t, omega, q=None, spinup_s=0.3, status="completed", shape="cylinder", summary_extra=None):
+    """A synthetic case directory: ``omega`` (T, N, 3) rad/s at times ``t`` (T,), quaternions
+    ``q`` (T, N, 4) (identity if None)."""
+    case_dir.mkdir(parents=True, exist_ok=True)
+    T, N, _ = omega.shape
+    if q is None:
+        q = np.zeros((T, N, 4))
+        q[..., 0] = 1.0
+    rows = {c: np.zeros(T * N) for c in PARQUET_COLUMNS}
+    rows["t_s"] = np.repeat(t, N)
+    rows["id"] = np.tile(np.arange(N), T)
+    for k, c in enumerate(("qw", "qx", "qy", "qz")):
+        rows[c] = q[..., k].ravel()
+    for k, a in enumerate("xyz"):
+        rows[f"w{a}_rad_s"] = omega[..., k].ravel()
+    rows["z_mm"] = np.tile(np.linspace(10, 90, N), T)
+    df = pd.DataFrame(rows)
+    df["id"] = df["id"].astype("int64")
+    df.to_parquet(case_dir / "particles.parquet", index=False)
+    st = pd.DataFrame({"id": np.arange(N), "shape": shape, "diameter_mm": 16.0 if shape == "cylinder" else np.nan,
+                       "length_mm": 16.0 if shape == "cylinder" else np.nan,
+                       "edge_mm": 8.0 if shape == "cube" else np.nan, "density_kg_m3": 1000.0, "fixed": False})
+    st.to_csv(case_dir / "particles_static.csv", index=False)
+    summary = {"status": status, "message": "", "steps": 100, "simulated_seconds": float(t[-1]), "wall_seconds": 2.0,
+               "mlups": 1.5, "spinup_s": spinup_s,
+               "particles": {"count": N, "concentration_target": 0.3, "concentration_achieved": 0.29,
+                             "collisions": True}}
+    summary.update(summary_extra or {})
+    (case_dir / "summary.json").write_text(json.dumps(summary))
+    (case_dir / "profile.csv").write_text("r_mm,uz_m_s,uz_poiseuille_m_s,nodes\n1.0,0.1,0.1,4\n")
+
+
+CYL_CFG = {"reynolds": 26, "particles": {"shape": "cylinder", "diameter_mm": 16, "length_mm": 16,
+                                         "concentration": 0.30}}
+CUBE_CFG = {"reynolds": 9.4, "particles": {"shape": "cube", "edge_mm": 8, "concentration": 0.30}}
+
+
+# ---------------------------------------------------------------- time-series statistics
+
+def test_batch_means_ci_covers_true_mean_of_correlated_ar1_and_is_wider_than_iid():
+    rng = np.random.default_rng(1)
+    phi, n, reps, mu = 0.9, 4000, 200, 3.0
+    x = _ar1(phi, n, reps, mu, rng)
+    res = [S.batch_means(s, n_batches=10) for s in x]
+    means = np.array([r[0] for r in res])
+    hw = np.array([r[1] for r in res])
+    assert all(r[2] == 10 for r in res)
+    np.testing.assert_allclose(means, x.mean(axis=1))
+    coverage = np.mean(np.abs(means - mu) <= hw)
+    iid_hw = 1.96 * x.std(axis=1, ddof=1) / math.sqrt(n)
+    iid_coverage = np.mean(np.abs(means - mu) <= iid_hw)
+    # nominal 95 %; the iid interval ignores sqrt((1+phi)/(1-phi)) = 4.4 of variance inflation
+    assert 0.88 <= coverage <= 0.99, coverage
+    assert iid_coverage < 0.6, iid_coverage
+    assert np.median(hw / iid_hw) > 3.0
+
+
+def test_batch_means_too_short_series_gives_nan_half_width():
+    m, hw, b = S.batch_means(np.array([1.0, 2.0, 3.0]))
+    assert m == pytest.approx(2.0) and math.isnan(hw) and b == 0
+    assert math.isnan(S.batch_means(np.array([]))[0])
+    # few samples: at least two per batch
+    assert S.batch_means(np.arange(8.0), n_batches=10)[2] == 4
+
+
+def test_integrated_autocorrelation_time_of_ar1_matches_exponential_correlation_integral():
+    rng = np.random.default_rng(2)
+    dt, phi = 0.02, 0.8
+    x = _ar1(phi, 40000, 1, 0.0, rng)[0]
+    exact = dt * (1 + phi) / (2 * (1 - phi))  # dt (1/2 + sum phi^k)
+    assert S.integrated_autocorrelation_time(x, dt) == pytest.approx(exact, rel=0.15)
+    white = rng.standard_normal(40000)
+    assert S.integrated_autocorrelation_time(white, dt) == pytest.approx(dt / 2, rel=0.15)
+
+
+# ---------------------------------------------------------------- orientation angles
+
+def test_cylinder_rotated_30_deg_about_x_has_axis_angle_30():
+    q = np.array([_q([1, 0, 0], 30.0), _q([0, 1, 0], -30.0), _q([1, 0, 0], 150.0), _q([1, 1, 0], 90.0)])
+    np.testing.assert_allclose(S.cylinder_axis_angle(q), [30.0, 30.0, 30.0, 90.0], atol=1e-9)
+
+
+def test_cylinder_axis_angle_agrees_with_rigid_rotation_of_body_z():
+    rng = np.random.default_rng(3)
+    from lbmpipe.rigid import random_quaternions
+    q = random_quaternions(50, rng)
+    ref = [math.degrees(math.acos(abs(rotate(qi, np.array([0.0, 0.0, 1.0]))[2]))) for qi in q]
+    np.testing.assert_allclose(S.cylinder_axis_angle(q), ref, atol=1e-9)
+
+
+@pytest.mark.parametrize("deg, projected, axis3d", [(20.0, 20.0, 20.0), (70.0, 20.0, 20.0), (-20.0, 20.0, 20.0),
+                                                    (45.0, 45.0, 45.0), (90.0, 0.0, 0.0)])
+def test_cube_turned_about_camera_axis_y_shows_folded_angle(deg, projected, axis3d):
+    q = _q([0, 1, 0], deg)[None, :]
+    assert S.cube_projected_angle(q)[0] == pytest.approx(projected, abs=1e-9)
+    assert S.cube_axis_angle(q)[0] == pytest.approx(axis3d, abs=1e-9)
+
+
+def test_cube_angles_are_invariant_under_the_cube_symmetry_group_and_bounded():
+    rng = np.random.default_rng(4)
+    from lbmpipe.rigid import random_quaternions
+    q = random_quaternions(200, rng)
+    for axis in ([1, 0, 0], [0, 1, 0], [0, 0, 1]):  # body quarter turns map the cube onto itself
+        q2 = np.array([quat_mul(qi, _q(axis, 90.0)) for qi in q])
+        np.testing.assert_allclose(S.cube_projected_angle(q2), S.cube_projected_angle(q), atol=1e-9)
+        np.testing.assert_allclose(S.cube_axis_angle(q2), S.cube_axis_angle(q), atol=1e-9)
+    p, a = S.cube_projected_angle(q), S.cube_axis_angle(q)
+    assert p.min() >= 0 and p.max() <= 45.0
+    assert a.min() >= 0 and a.max() <= S.CUBE_MAX_AXIS_ANGLE_DEG + 1e-9
+    # the body diagonal along the pipe axis is the farthest a cube axis can be from it
+    diag = quat_from_axis_angle(np.cross([1.0, 1.0, 1.0], [0.0, 0.0, 1.0]),
+                                math.acos(1 / math.sqrt(3)))[None, :]
+    assert S.cube_axis_angle(diag)[0] == pytest.approx(54.7356, abs=1e-3)
+
+
+# ---------------------------------------------------------------- per-case statistics
+
+def _omega_case(tmp_path):
+    """3 particles, 10 samples t = 0, 0.1, ..., 0.9; spin-up 0.3 s carries huge |Omega| that
+    must not leak into the statistics (the sample at exactly t = 0.3 s is spin-up)."""
+    t = np.round(np.arange(10) * 0.1, 10)
+    rng = np.random.default_rng(5)
+    omega = rng.normal(0.0, 1.0, (10, 3, 3))
+    omega[t <= 0.3] = 1000.0
+    write_case(tmp_path / "c", t, omega, spinup_s=0.3)
+    return t, omega
+
+
+def test_mean_abs_omega_is_mean_over_particles_and_samples_after_spinup(tmp_path):
+    t, omega = _omega_case(tmp_path)
+    s = S.case_statistics("c", tmp_path / "c", CYL_CFG)
+    keep = t > 0.3 + 1e-12
+    assert s["samples"] == 6 and s["spinup_s"] == 0.3 and s["status"] == "completed"
+    for k, a in enumerate("xyz"):
+        hand = np.abs(omega[keep, :, k]).mean()
+        assert s["mean_abs_omega_rad_s"][a] == pytest.approx(hand, rel=1e-12)
+        series = np.abs(omega[keep, :, k]).mean(axis=1)
+        b = 3  # 6 samples -> 3 batches of 2
+        bm = series.reshape(b, 2).mean(axis=1)
+        from scipy import stats
+        hw = stats.t.ppf(0.975, b - 1) * bm.std(ddof=1) / math.sqrt(b)
+        assert s["ci95_rad_s"][a] == pytest.approx(hw, rel=1e-10)
+    assert s["n_batches"] == 3 and s["n_particles"] == 3
+    assert (s["shape"], s["size_label"], s["reynolds"], s["concentration"]) == ("cylinder", "16x16 mm", 26.0, 0.3)
+
+
+def test_spinup_argument_overrides_summary_and_removes_samples(tmp_path):
+    t, omega = _omega_case(tmp_path)
+    s = S.case_statistics("c", tmp_path / "c", CYL_CFG, spinup_s=0.65)
+    assert s["samples"] == 3
+    assert s["mean_abs_omega_rad_s"]["y"] == pytest.approx(np.abs(omega[t > 0.65, :, 1]).mean())
+    # no spin-up at all: the large spin-up values are then in the mean
+    s0 = S.case_statistics("c", tmp_path / "c", CYL_CFG, spinup_s=-1.0)
+    assert s0["samples"] == 10 and s0["mean_abs_omega_rad_s"]["x"] > 100
+
+
+def test_statistics_are_nan_when_the_case_did_not_complete(tmp_path):
+    t = np.arange(10) * 0.1
+    write_case(tmp_path / "c", t, np.ones((10, 2, 3)), status="unstable")
+    s = S.case_statistics("c", tmp_path / "c", CYL_CFG)
+    assert s["status"] == "unstable" and s["samples"] == 0
+    assert all(math.isnan(v) for v in s["mean_abs_omega_rad_s"].values())
+    assert S.case_statistics("gone", tmp_path / "gone", CYL_CFG)["status"] == "not run"
+
+
+def test_orientation_histogram_fractions_of_known_angles(tmp_path):
+    # 2 cylinders: one at 5 deg to the pipe axis, one at 45 deg in the first 2 samples then 85 deg
+    t = np.arange(5) * 0.1
+    q = np.zeros((5, 2, 4))
+    q[:, 0] = _q([1, 0, 0], 5.0)
+    q[:, 1] = _q([0, 1, 0], 85.0)
+    q[:2, 1] = _q([0, 1, 0], 45.0)
+    write_case(tmp_path / "c", t, np.zeros((5, 2, 3)), q=q, spinup_s=0.05)
+    h = S.orientation_histograms(tmp_path / "c", "cylinder", 0.05)
+    assert list(h.columns) == S.ORIENTATION_COLUMNS
+    assert set(h.kind) == {"cyl_axis_angle"} and len(h) == 9
+    frac = dict(zip(h.bin_lo_deg.round(6), h.fraction))
+    # samples after spin-up: t = 0.1..0.4 (4) x 2 particles = 8; the 45 deg one only at t = 0.1
+    assert frac[0.0] == pytest.approx(4 / 8)
+    assert frac[40.0] == pytest.approx(1 / 8)
+    assert frac[80.0] == pytest.approx(3 / 8)
+    assert h.fraction.sum() == pytest.approx(1.0)
+    assert h.loc[h.bin_lo_deg == 0.0, "ci95"].iloc[0] == pytest.approx(0.0)  # always exactly half
+
+
+def test_write_case_outputs_writes_stats_json_and_cube_orientation_csv(tmp_path):
+    t = np.arange(8) * 0.1
+    q = np.zeros((8, 4, 4))
+    q[:] = _q([0, 1, 0], 68.0)  # folds to 22 deg, clear of the 5 deg bin edges
+    write_case(tmp_path / "c", t, np.ones((8, 4, 3)), q=q, shape="cube", spinup_s=0.0)
+    S.write_case_outputs("c", tmp_path / "c", CUBE_CFG)
+    s = json.loads((tmp_path / "c" / "stats.json").read_text())
+    for key in ("case", "status", "shape", "size_label", "reynolds", "concentration", "collisions", "n_particles",
+                "spinup_s", "samples", "mean_abs_omega_rad_s", "ci95_rad_s", "n_batches", "tau_int_s"):
+        assert key in s
+    assert s["mean_abs_omega_rad_s"]["z"] == pytest.approx(1.0)
+    assert s["orientation"]["cube_projected_angle"]["mean_deg"] == pytest.approx(22.0)
+    o = pd.read_csv(tmp_path / "c" / "orientation.csv")
+    assert set(o.kind) == {"cube_projected_angle", "cube_axis_angle"}
+    proj = o[o.kind == "cube_projected_angle"]
+    assert proj.loc[(proj.bin_lo_deg <= 22) & (proj.bin_hi_deg > 22), "fraction"].iloc[0] == pytest.approx(1.0)
+
+
+# ---------------------------------------------------------------- aggregated tables
+
+def test_aggregate_lists_every_particle_case_including_unpackable_and_not_run(tmp_path):
+    fid = tmp_path / "smoke"
+    t = np.arange(8) * 0.1
+    write_case(fid / "cases" / "a", t, np.full((8, 2, 3), 0.5), spinup_s=0.1)
+    unp = fid / "cases" / "b"
+    unp.mkdir(parents=True)
+    (unp / "summary.json").write_text(json.dumps({
+        "status": "unpackable", "message": "not run: the packing could not be made", "steps": 0, "spinup_s": 0.0,
+        "packing": {"concentration_target": 0.5, "concentration_reached": 0.2839, "message": "cannot pack"},
+        "particles": {"count": 0, "concentration_target": 0.5, "concentration_achieved": 0.2839}}))
+    pd.DataFrame(columns=PARQUET_COLUMNS, dtype="float64").to_parquet(unp / "particles.parquet", index=False)
+    cases = {"flow": {"reynolds": 26}, "a": CYL_CFG,
+             "b": {"reynolds": 9.4, "particles": {"shape": "cube", "edge_mm": 24, "concentration": 0.5}},
+             "c": {"reynolds": 9.4, "particles": {"shape": "cube", "edge_mm": 8, "concentration": 0.3},
+                   "collisions": False}}
+    S.write_case_outputs("a", fid / "cases" / "a", CYL_CFG)
+    S.aggregate(fid, cases)
+    av = pd.read_csv(fid / "tables" / "angular_velocity.csv")
+    assert list(av.columns) == S.ANGULAR_VELOCITY_COLUMNS
+    assert list(av.case) == ["a", "b", "c"]  # the particle-free case is not a particle case
+    a, b, c = (av.set_index("case").loc[k] for k in "abc")
+    assert a.status == "completed" and a.omega_x == pytest.approx(0.5) and a.samples == 6
+    assert b.status == "unpackable" and math.isnan(b.omega_x) and b.concentration_achieved == pytest.approx(0.2839)
+    assert b.size_label == "24 mm" and b.concentration == 0.5
+    assert c.status == "not run" and not c.collisions
+    pk = pd.read_csv(fid / "tables" / "packing.csv").set_index("case")
+    assert list(pk.columns) == S.PACKING_COLUMNS[1:]
+    assert pk.loc["b", "status"] == "unpackable" and pk.loc["b", "concentration_achieved"] == pytest.approx(0.2839)
+    assert pk.loc["b", "concentration_target"] == 0.5 and "packing" in pk.loc["b", "message"]
+    o = pd.read_csv(fid / "tables" / "orientation.csv")
+    assert set(o.case) == {"a", "b", "c"}
+    assert o[o.case == "a"].fraction.sum() == pytest.approx(1.0)
+    assert o[o.case == "b"].fraction.isna().all() and set(o[o.case == "b"].kind) == {"cube_projected_angle",
+                                                                                   "cube_axis_angle"}
+    osum = pd.read_csv(fid / "tables" / "orientation_summary.csv")
+    assert len(osum) == 1 + 2 + 2
+    assert osum.loc[osum.case == "a", "mean_deg"].iloc[0] == pytest.approx(0.0, abs=1e-6)
+
+
+def test_runtime_table_reads_benchmarks_and_tolerates_missing_ones(tmp_path):
+    fid = tmp_path / "smoke"
+    write_case(fid / "cases" / "a", np.arange(4) * 0.1, np.zeros((4, 1, 3)))
+    (fid / "benchmarks").mkdir(parents=True)
+    (fid / "benchmarks" / "a.simulate.tsv").write_text(
+        "s\th:m:s\tmax_rss\tmax_vms\n3.5\t0:00:03\t280.5\t1700\n")
+    out = S.runtime_table(fid, {"a": CYL_CFG, "b": {"reynolds": 26}})
+    rt = pd.read_csv(out).set_index("case")
+    assert list(rt.columns) == S.RUNTIME_COLUMNS[1:]
+    assert rt.loc["a", "wall_s"] == 3.5 and rt.loc["a", "max_rss_mb"] == 280.5
+    assert rt.loc["a", "s_per_step"] == pytest.approx(2.0 / 100)  # summary wall_seconds / steps
+    assert rt.loc["b", "status"] == "not run" and math.isnan(rt.loc["b", "wall_s"])

@@ -1,0 +1,38 @@
+# Functions the rules use (Snakemake's lint wants them apart from the rules).
+from lbmpipe import study as lbm_study
+
+
+def _packing_input(wildcards):
+    pid = packing_id(config["cases"][wildcards.case])
+    return {} if pid is None else {"packing": f"results/packings/{pid}.csv"}
+
+
+def _packing_info(wildcards):
+    return f"results/packings/{packing_id(config['cases'][wildcards.case])}.json"
+
+
+def _threads(wildcards):
+    return int(config["fidelities"][wildcards.fidelity].get("threads", 2))
+
+
+def _runtime(wildcards):
+    return estimate_minutes(config, wildcards.fidelity, wildcards.case)
+
+
+def _study_run_dirs(wildcards):
+    return expand("results/{fidelity}/study/runs/{run}", fidelity=wildcards.fidelity,
+                  run=lbm_study.run_ids(config, wildcards.fidelity))
+
+
+def _study_case_inputs(wildcards):
+    # The averaging-time reference reads one particle case of this level; it is an input so that
+    # the study waits for it. Other levels and the other cases are read if present, not required.
+    case = lbm_study.study_settings(config, wildcards.fidelity)["averaging"]["case"]
+    if case not in config["cases"]:
+        return {}
+    return {"case_summary": f"results/{wildcards.fidelity}/cases/{case}/summary.json",
+            "case_particles": f"results/{wildcards.fidelity}/cases/{case}/particles.parquet"}
+
+
+def _study_threads(wildcards):
+    return int(lbm_study.study_settings(config, wildcards.fidelity)["threads"])

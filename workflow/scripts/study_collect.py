@@ -1,0 +1,14 @@
+import json
+import sys
+from pathlib import Path
+
+from lbmpipe.study import collect
+
+sys.stdout = sys.stderr = open(snakemake.log[0], "w")
+root = Path(snakemake.output.table).parents[2]  # results/
+table, cost_runs, model = collect(snakemake.config, snakemake.wildcards.fidelity, root)
+table.to_csv(snakemake.output.table, index=False)
+cost_runs.to_csv(snakemake.output.runs, index=False)
+Path(snakemake.output.model).write_text(json.dumps(model, indent=2) + "\n")
+print(table[["reference", "knob", "setting", "error", "wall_s"]].to_string())
+print(json.dumps(model, indent=2))
