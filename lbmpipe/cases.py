@@ -208,4 +208,9 @@ def simulate_case(scene_path: Path, packing_json: Path | None, out_dir: Path, th
 
     scene = load_scene(scene_path)
     kwargs = {"checkpoint": checkpoint} if checkpoint is not None else {}
-    return run_scene(scene, derive(scene), out_dir, progress=False, **kwargs)
+    summary = run_scene(scene, derive(scene), out_dir, progress=False, **kwargs)
+    # A run stopped as unstable before the averaging window has no profile: say so in an empty
+    # table rather than leave the pipeline without the file.
+    if not (out_dir / "profile.csv").exists():
+        (out_dir / "profile.csv").write_text("r_mm,uz_m_s,uz_poiseuille_m_s,nodes\n")
+    return summary

@@ -21,6 +21,7 @@ rule pack:
 rule scene:
     """Write the validated scene of one case at one fidelity level (``run:``, inside Snakemake: a
     YAML file is cheaper to write than a Python process to start)."""
+    localrule: True
     conda:
         "../envs/lbmpipe.yaml"
     input:

@@ -7,6 +7,7 @@ TABLES = ["angular_velocity", "orientation", "orientation_summary", "packing", "
 
 rule statistics:
     """Mean |Omega| about x, y, z with batch-means confidence intervals, orientation histograms."""
+    localrule: True
     conda:
         "../envs/lbmpipe.yaml"
     input:

@@ -11,6 +11,7 @@
 rule study_scene:
     """The scene of one study run (a knob setting of the pipe or sphere-drag reference). Runs
     inside Snakemake (``run:``): writing a YAML file costs less than starting a Python process."""
+    localrule: True
     conda:
         "../envs/lbmpipe.yaml"
     output:
