@@ -31,6 +31,7 @@ LBMPIPE = f"{sys.executable} -m lbmpipe"
 # Inputs the document reads beyond figures and claims (the stability table, the study), as
 # patterns of {fidelity}.
 PAPER_EXTRA_INPUTS = [
+    "results/{fidelity}/tables/stability.csv",
     "results/{fidelity}/study/recommendation.json",
     "results/{fidelity}/study/accuracy_cost.png",
     "results/{fidelity}/study/cost_model.png",
@@ -41,6 +42,7 @@ include: "workflow/rules/common.smk"
 include: "workflow/rules/cases.smk"
 include: "workflow/rules/figures.smk"
 include: "workflow/rules/study.smk"
+include: "workflow/rules/stability.smk"
 include: "workflow/rules/paper.smk"
 
 

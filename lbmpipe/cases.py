@@ -31,8 +31,7 @@ FLOWS = {9.4: 1.577e-4, 26.0: 3.154e-4}
 def fidelity_numerics(fidelity: dict, reynolds: float | None = None) -> dict:
     """Scene ``numerics`` for a fidelity level: ``dx_mm`` and ``dt_s`` (or ``dt_per_mm_s``); at
     Re 26 the time step is multiplied by ``re26_dt_factor`` (default 1): the paper's dt gives a
-    centre-line Mach number of 0.56 there, which the stability suite finds unstable once particles
-    crowd the pipe, so the levels halve it (Mach 0.28, NOTES.md's third row)."""
+    centre-line Mach number of 0.56 there; 0.5 halves it (Mach 0.28, NOTES.md's third row)."""
     num = {k: v for k, v in fidelity.get("numerics", {}).items()}
     dx = float(fidelity["dx_mm"])
     num["dx_mm"] = dx

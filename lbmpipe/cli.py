@@ -1,8 +1,9 @@
-"""Command line: ``lbmpipe check SCENE...`` and ``lbmpipe run SCENE --out DIR``.
+"""Command line: ``lbmpipe check SCENE...``, ``lbmpipe run SCENE --out DIR`` and ``lbmpipe stability``.
 
-Exit status: 0 success; 2 bad scene or bad arguments; 3 output directory already holds a
-finished run (``summary.json``) and ``--force`` was not given; 4 the solver did not complete;
-130 interrupted.
+Exit status: 0 success; 2 bad scene, bad arguments or a checkpoint of another scene; 3 output
+directory already holds a finished run (``summary.json``) and ``--force`` was not given (unless
+resuming from ``--checkpoint``); 4 the solver did not complete (status ``unstable``: the run-time
+guard stopped a diverging run); 130 interrupted.
 """
 
 from __future__ import annotations
@@ -128,7 +129,8 @@ def _cmd_run(args) -> int:
         print(f"{args.scene}:\n{exc}", file=sys.stderr)
         return EXIT_BAD_SCENE
     out = Path(args.out)
-    if (out / "summary.json").exists() and not args.force:
+    resuming = args.checkpoint is not None and Path(args.checkpoint).exists()
+    if (out / "summary.json").exists() and not args.force and not resuming:
         print(f"{out} already holds a finished run (summary.json); nothing was changed. "
               "Use --force to overwrite it, or choose another --out.", file=sys.stderr)
         return EXIT_EXISTS
@@ -144,8 +146,19 @@ def _cmd_run(args) -> int:
         print(f"the solver is not available: {exc}", file=sys.stderr)
         return EXIT_FAILED
     out.mkdir(parents=True, exist_ok=True)
+    kwargs = {}
+    if args.checkpoint is not None:
+        kwargs = {"checkpoint": Path(args.checkpoint), "checkpoint_every_s": args.checkpoint_every_s,
+                  "keep_checkpoint": args.keep_checkpoint}
+        if resuming and not args.quiet:
+            print(f"resuming from the checkpoint {args.checkpoint}")
+    from lbmpipe.checkpoint import CheckpointError
+
     try:
-        summary = run_scene(scene, params, out, progress=not args.quiet, max_steps=args.steps)
+        summary = run_scene(scene, params, out, progress=not args.quiet, max_steps=args.steps, **kwargs)
+    except CheckpointError as exc:
+        print(str(exc), file=sys.stderr)
+        return EXIT_BAD_SCENE
     except KeyboardInterrupt:
         print("interrupted", file=sys.stderr)
         return EXIT_INTERRUPTED
@@ -153,10 +166,31 @@ def _cmd_run(args) -> int:
     if status == "completed":
         return EXIT_OK
     if status == "interrupted":
-        print("run interrupted; partial results in " + str(out), file=sys.stderr)
+        hint = (f"; rerun the same command to resume from {args.checkpoint}" if args.checkpoint is not None else "")
+        print("run interrupted; partial results in " + str(out) + hint, file=sys.stderr)
         return EXIT_INTERRUPTED
+    if summary.get("message"):
+        print(summary["message"], file=sys.stderr)
     print(f"run did not complete (status {status!r}); see {out}", file=sys.stderr)
     return EXIT_FAILED
+
+
+def _cmd_stability(args) -> int:
+    from lbmpipe import stability
+
+    cases = stability.suite()
+    if args.cases:
+        unknown = sorted(set(args.cases) - {c.name for c in cases})
+        if unknown:
+            print(f"unknown case(s) {unknown}; the suite has {[c.name for c in cases]}", file=sys.stderr)
+            return EXIT_BAD_SCENE
+        cases = [c for c in cases if c.name in args.cases]
+    settings = stability.fidelity_settings(None, args.fidelity)
+    df = stability.run_suite(settings, Path(args.out) if args.out else None, cases=cases, threads=args.threads,
+                             log=None if args.quiet else print)
+    if df.attrs.get("recommendation") and not args.quiet:
+        print(df.attrs["recommendation"])
+    return EXIT_OK if (df["status"] != "violated").all() else EXIT_FAILED
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -171,7 +205,23 @@ def build_parser() -> argparse.ArgumentParser:
     p_run.add_argument("--force", action="store_true", help="overwrite a DIR that already holds summary.json")
     p_run.add_argument("--steps", type=int, default=None, metavar="N", help="stop after N steps (smoke tests)")
     p_run.add_argument("--quiet", action="store_true", help="no report, no progress bar")
+    p_run.add_argument("--checkpoint", default=None, metavar="PATH",
+                       help="checkpoint file: resume from it if it exists (same scene only), write the state to it "
+                            "every --checkpoint-every-s seconds and at Ctrl-C, remove it on completion; resuming "
+                            "is allowed into a DIR whose summary.json is from the interrupted run")
+    p_run.add_argument("--checkpoint-every-s", type=float, default=300.0, metavar="S",
+                       help="wall-clock seconds between checkpoints (default 300)")
+    p_run.add_argument("--keep-checkpoint", action="store_true",
+                       help="keep the checkpoint (with the final state) when the run completes")
     p_run.set_defaults(func=_cmd_run)
+    p_st = sub.add_parser("stability", help="run the stability suite (lbmpipe.stability) and print/write its table")
+    p_st.add_argument("--fidelity", default="smoke", choices=["smoke", "quick", "paper"],
+                      help="lattice spacing and step counts of the suite (default smoke)")
+    p_st.add_argument("--cases", nargs="+", default=None, metavar="CASE", help="run only these cases")
+    p_st.add_argument("--out", default=None, metavar="CSV", help="write the table here")
+    p_st.add_argument("--threads", type=int, default=1, help="numba threads (default 1)")
+    p_st.add_argument("--quiet", action="store_true")
+    p_st.set_defaults(func=_cmd_stability)
     return parser
 
 

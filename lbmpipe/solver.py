@@ -6,7 +6,13 @@ State lives in lattice units. ``f`` holds the post-collision populations of the 
 1. ``pre`` effects fill the ghost slots of solid nodes (walls, later particles) in ``f``;
 2. the ``fluid`` effect streams and collides ``f -> f_next`` (one generated kernel);
 3. ``post`` effects (flow-rate control, later rigid-body motion and collisions);
-4. swap.
+4. swap;
+5. every ``guard.every`` steps, the run-time guard (``lbmpipe.guard``): NaN/Inf, lattice speed,
+   density range, particles inside and overlaps within the collision bound; a failure raises
+   ``guard.Unstable``, which ``run_scene`` reports as status ``unstable``.
+
+``run_scene`` can write checkpoints (``lbmpipe.checkpoint``) every few minutes of wall time and at
+an interrupt, and resumes from one: the resumed run is bit-identical to an uninterrupted one.
 """
 
 from __future__ import annotations
@@ -54,6 +60,7 @@ class Simulation:
         # A few chunks per thread balance the columns across cores without per-column overhead.
         self.n_chunks = max(1, min(len(grid.cols_x), 4 * numba.get_num_threads()))
         self.set_equilibrium(1.0, (0.0, 0.0, 0.0))
+        self.guard = None  # guard.Guard: checks the state every guard.every steps
         self.particles = None  # coupling.ParticleSystem when the scene has particles
         self.particle_static: list[dict] = []
         self.packing: dict = {}  # how a packed group was made (target/achieved concentration, ...)
@@ -79,6 +86,7 @@ class Simulation:
     def step(self, n: int = 1) -> None:
         perf = time.perf_counter
         timers = self.timers
+        guard = self.guard
         for _ in range(n):
             for e in self.effects:
                 t0 = perf()
@@ -86,6 +94,12 @@ class Simulation:
                 timers[e.name] += perf() - t0
             self.f, self.f_next = self.f_next, self.f
             self.step_count += 1
+            if guard is not None and self.step_count % guard.every == 0:
+                t0 = perf()
+                try:
+                    guard.check(self)
+                finally:
+                    guard.seconds += perf() - t0
 
     def moments(self):
         """(rho, ux, uy, uz) on the grid (lattice units); meaningless at solid nodes."""
@@ -146,8 +160,9 @@ def collision_effect(scene, params, system):
                                                         overlap_tol=c.overlap_tol_dx))
 
 
-def simulation_from_scene(scene, params) -> Simulation:
-    """Assemble the simulation a scene declares: exactly its effects, and its initial state.
+def simulation_from_scene(scene, params, guard: bool = True) -> Simulation:
+    """Assemble the simulation a scene declares: exactly its effects, and its initial state, with
+    the run-time guard (``lbmpipe.guard``) unless ``guard=False``.
 
     With particles, the step is: wall fills, particle fills and velocity update (``coupling``),
     sweep, then the flow-rate flux correction, the controller, the collisions and the particle
@@ -186,6 +201,10 @@ def simulation_from_scene(scene, params) -> Simulation:
         r = np.sqrt(x[:, None] ** 2 + y[None, :] ** 2)
         uz = obs.poiseuille_pipe(r, grid.radius, 2.0 * params.u_mean_lu)[:, :, None]
         sim.set_equilibrium(1.0, (0.0, 0.0, uz))
+    if guard:
+        from .guard import guard_for
+
+        sim.guard = guard_for(sim, scene, params)
     return sim
 
 
@@ -213,7 +232,9 @@ class _Interrupt:
         return False
 
 
-def run_scene(scene, params, out_dir: Path, progress: bool = True, max_steps: int | None = None) -> dict:
+def run_scene(scene, params, out_dir: Path, progress: bool = True, max_steps: int | None = None,
+              checkpoint: Path | None = None, checkpoint_every_s: float = 300.0, keep_checkpoint: bool = False,
+              stop_at_step: int | None = None) -> dict:
     """Run ``scene`` and write its outputs into ``out_dir``; returns the summary (also written).
 
     Outputs (physical units; documented in the README): ``summary.json``, ``flow_rate.csv`` and,
@@ -221,9 +242,24 @@ def run_scene(scene, params, out_dir: Path, progress: bool = True, max_steps: in
     also ``particles.parquet`` (state per particle per sample) and ``particles_static.csv`` (shape
     and size per particle); particle nodes are excluded from the fluid observables, the flow rate
     is the mixture's (fluid plus particle volume flux) and the profile the fluid's.
+
+    Stability: the run-time guard (``lbmpipe.guard``) checks the state every ``guard.every``
+    steps; a failure ends the run with status ``unstable`` and a message naming what failed,
+    where, at which step, the likely cause and a fix. The last good checkpoint is left in place.
+
+    Checkpoints (``checkpoint`` a file path, ``lbmpipe.checkpoint``): if the file exists and was
+    written for this scene, the run resumes from it (a checkpoint of another scene is refused
+    with ``checkpoint.CheckpointError``); the complete state is written to it atomically every
+    ``checkpoint_every_s`` seconds of wall time (at a sample, after a guard check) and at an
+    interrupt. On completion the file is removed, or, with ``keep_checkpoint``, rewritten with the
+    final state. An interrupted-then-resumed run gives bit-identical outputs to an uninterrupted
+    one. ``stop_at_step`` stops the run as an interrupt would once that step is reached (to split
+    a run into parts, and for tests).
     """
+    from . import checkpoint as ckpt
     from . import outputs
     from .collisions import CollisionEffect
+    from .guard import Unstable
 
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -240,50 +276,98 @@ def run_scene(scene, params, out_dir: Path, progress: bool = True, max_steps: in
     n_avg = 0
     ps = sim.particles
     recorder = None
+    series = []
+    wall_before = 0.0
+    resumed_from = None
+    fingerprint = ckpt.scene_fingerprint(scene) if checkpoint is not None else ""
     if ps is not None:
         from . import particles as particles_out
 
         recorder = particles_out.ParticleRecorder(ps, units)
+    if checkpoint is not None and Path(checkpoint).exists():
+        run, arrs = ckpt.load(Path(checkpoint), sim, fingerprint)
+        resumed_from = sim.step_count
+        mass0, n_avg, wall_before = float(run["mass0"]), int(run["n_avg"]), float(run["wall_seconds"])
+        uz_sum[...] = arrs["uz_sum"]
+        uz_cnt[...] = arrs["uz_cnt"]
+        series = [(int(r[0]), float(r[1]), float(r[2]), float(r[3])) for r in arrs["series"]]
+        if recorder is not None and ps.n:
+            rows = arrs["particle_rows"]
+            recorder.rows = [rows[i:i + ps.n].copy() for i in range(0, len(rows), ps.n)]
+    elif recorder is not None:
         recorder.sample(0)
-    series = []
+
+    def save_checkpoint(wall_so_far: float) -> None:
+        rows = np.concatenate(recorder.rows) if recorder is not None and recorder.rows else np.zeros((0, 0))
+        ckpt.write(Path(checkpoint), sim, fingerprint,
+                   run={"mass0": mass0, "n_avg": n_avg, "wall_seconds": wall_so_far},
+                   run_arrays={"uz_sum": uz_sum, "uz_cnt": uz_cnt,
+                               "series": np.array(series, dtype=np.float64).reshape(-1, 4), "particle_rows": rows})
+        n_written[0] += 1
+
+    n_written = [0]
     status = "completed"
     message = ""
     bar = outputs.progress_bar(n_steps, units.dt_s, grid.n_fluid, enabled=progress)
+    start_step = sim.step_count
+    if start_step:
+        bar.update(min(start_step, n_steps))
     # The first sweep compiles or loads the kernels; keep that out of the MLUPS figure.
     sim.step(0)
     t0 = time.perf_counter()
+    last_ckpt = t0
     setup_seconds = t0 - t_build
     with _Interrupt() as stop:
-        while sim.step_count < n_steps:
-            chunk = min(every - sim.step_count % every, n_steps - sim.step_count)
-            sim.step(chunk)
-            bar.update(chunk)
-            if sim.step_count % every == 0 or sim.step_count == n_steps:
-                rho, ux, uy, uz = sim.moments()
-                fluid = sim.fluid_mask()
-                if not np.isfinite(rho[fluid]).all():
-                    status, message = "unstable", f"non-finite density at step {sim.step_count}"
-                    break
-                jz = float(uz[fluid].sum())
-                if ps is not None:
-                    if not np.isfinite(ps.bodies.v).all():
-                        status, message = "unstable", f"non-finite particle velocity at step {sim.step_count}"
+        try:
+            while sim.step_count < n_steps:
+                chunk = min(every - sim.step_count % every, n_steps - sim.step_count)
+                if stop_at_step is not None and sim.step_count < stop_at_step:
+                    chunk = min(chunk, stop_at_step - sim.step_count)
+                sim.step(chunk)
+                bar.update(chunk)
+                if sim.step_count % every == 0 or sim.step_count == n_steps:
+                    rho, ux, uy, uz = sim.moments()
+                    fluid = sim.fluid_mask()
+                    if not np.isfinite(rho[fluid]).all():
+                        status, message = "unstable", f"non-finite density at step {sim.step_count}"
                         break
-                    jz += float(np.dot(ps.nown, ps.bodies.v[:, 2]))  # mixture: particle volume flux
-                    recorder.sample(sim.step_count)
-                q_lu = jz / grid.shape[2]
-                series.append((sim.step_count, q_lu, float(sim.force[2]), float(np.abs(rho[fluid] - 1).max())))
-                if sim.step_count > spinup:
-                    uz_sum += np.where(fluid, uz, 0.0)
-                    uz_cnt += fluid
-                    n_avg += 1
-                elapsed = time.perf_counter() - t0
-                bar.set_postfix_str(outputs.progress_text(sim.step_count, units.dt_s, grid.n_fluid, elapsed))
-            if stop.hit:
-                status, message = "interrupted", f"interrupted at step {sim.step_count}"
-                break
-    wall = time.perf_counter() - t0
+                    jz = float(uz[fluid].sum())
+                    if ps is not None:
+                        if not np.isfinite(ps.bodies.v).all():
+                            status, message = "unstable", f"non-finite particle velocity at step {sim.step_count}"
+                            break
+                        jz += float(np.dot(ps.nown, ps.bodies.v[:, 2]))  # mixture: particle volume flux
+                        recorder.sample(sim.step_count)
+                    q_lu = jz / grid.shape[2]
+                    series.append((sim.step_count, q_lu, float(sim.force[2]), float(np.abs(rho[fluid] - 1).max())))
+                    if sim.step_count > spinup:
+                        uz_sum += np.where(fluid, uz, 0.0)
+                        uz_cnt += fluid
+                        n_avg += 1
+                    elapsed = time.perf_counter() - t0
+                    bar.set_postfix_str(outputs.progress_text(sim.step_count, units.dt_s, grid.n_fluid, elapsed))
+                if stop.hit or (stop_at_step is not None and sim.step_count >= stop_at_step
+                                and sim.step_count < n_steps):
+                    status, message = "interrupted", f"interrupted at step {sim.step_count}"
+                    break
+                now = time.perf_counter()
+                if checkpoint is not None and sim.step_count < n_steps and now - last_ckpt >= checkpoint_every_s:
+                    if sim.guard is not None:
+                        sim.guard.check(sim)  # only a state that passes the guard is a good checkpoint
+                    save_checkpoint(wall_before + now - t0)
+                    last_ckpt = time.perf_counter()
+            if checkpoint is not None and (status == "interrupted" or (status == "completed" and keep_checkpoint)):
+                if sim.guard is not None:
+                    sim.guard.check(sim)
+                save_checkpoint(wall_before + time.perf_counter() - t0)
+        except Unstable as exc:
+            status, message = "unstable", str(exc)
+            if checkpoint is not None and Path(checkpoint).exists():
+                message += f" The last good checkpoint is kept at {checkpoint} (resuming it with the same scene repeats the failure)."
+    wall = wall_before + time.perf_counter() - t0
     bar.close()
+    if checkpoint is not None and status == "completed" and not keep_checkpoint:
+        Path(checkpoint).unlink(missing_ok=True)
     mass1 = sim.mass()
     files = {}
     summary = {
@@ -302,6 +386,11 @@ def run_scene(scene, params, out_dir: Path, progress: bool = True, max_steps: in
         "samples_averaged": n_avg,
         "spinup_s": spinup * units.dt_s,
     }
+    if sim.guard is not None:
+        summary["guard"] = sim.guard.record()
+    if checkpoint is not None:
+        summary["checkpoint"] = {"path": str(checkpoint), "resumed_from_step": resumed_from, "written": n_written[0],
+                                 "kept": Path(checkpoint).exists(), "every_s": checkpoint_every_s}
     files["flow_rate.csv"] = outputs.write_flow_rate(out_dir, series, units, scene)
     if ps is not None:
         summary["particles"] = {

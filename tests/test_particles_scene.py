@@ -133,7 +133,7 @@ def test_run_with_particles_writes_the_documented_outputs(tmp_path):
     assert {"particles.parquet", "particles_static.csv", "flow_rate.csv"} <= set(summary["files"])
     assert (tmp_path / "summary.json").exists()
     names = [n for n in summary["effects"] if n.startswith("particles:")]
-    assert len(names) == 3  # fixed obstacles, free coupling, motion: timed separately
+    assert len(names) == 4  # fixed obstacles, free coupling, motion, mass correction: timed separately
     df = pd.read_parquet(tmp_path / "particles.parquet")
     assert list(df.columns) == list(pt.PARQUET_COLUMNS)
     assert len(df) == 5 * 4  # samples at t = 0, 0.02, 0.04, 0.06 s

@@ -48,7 +48,7 @@ def test_cases_sharing_shape_concentration_and_seed_share_one_packing():
     assert cases.packing_id(cyl) == "cyl16x24_c50_s3"
 
 
-def test_re26_runs_at_half_the_papers_time_step_and_keeps_the_reynolds_number():
+def test_re26_dt_factor_halves_the_time_step_and_keeps_the_reynolds_number():
     s94 = Scene.model_validate(cases.case_scene("a", CUBE8, "tiny", SMOKE))
     s26 = Scene.model_validate(cases.case_scene("b", {**CUBE8, "reynolds": 26}, "tiny", SMOKE))
     assert s94.numerics.dt_s == pytest.approx(5e-3)

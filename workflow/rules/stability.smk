@@ -10,6 +10,8 @@
 rule stability_table:
     """Run the suite and write results/<fidelity>/tables/stability.csv (+ .json: settings, bounds,
     the cheapest stable Re 26 setting)."""
+    conda:
+        "../envs/lbmpipe.yaml"
     output:
         table="results/{fidelity}/tables/stability.csv",
         info="results/{fidelity}/tables/stability.json",
@@ -27,5 +29,7 @@ rule stability_table:
 
 rule stability:
     """The stability table at the configured fidelity."""
+    conda:
+        "../envs/lbmpipe.yaml"
     input:
         expand("results/{fidelity}/tables/stability.csv", fidelity=FIDELITY),
