@@ -146,10 +146,13 @@ Cost
 ----
 Per step: one pass per particle over its links (``prange`` over particles: a scattered read of
 ``f*_i(x)`` and a scattered write of the ghost slot per link), the 6x6 solve, the drift, the runs
-(one ray per column), the run differences, and a serial pass over the owner changes. There is no
-Python loop over particles or links. The paper's 115 cubes of 8 mm have about 190,000 links, about
-one per fluid node, so the link work costs about as much as the fluid sweep. ``benchmarks/particles.py``
-measures the split.
+(one ray per column), the run differences, and the remap, serial over the owner changes (their
+order fixes the order of the link lists, so results do not depend on the thread count).
+There is no Python loop over particles or links. The paper's 115 cubes of 8 mm have about 200,000
+links, about one per fluid node. The link passes are bound by the latency of those scattered
+accesses (two cache lines of ``f`` per link, out of cache after the sweep), so the coupling costs
+about as much as the streaming fluid sweep (measured: 0.8-1.3x on 1 thread), the remap about a
+quarter of it; ``benchmarks/particles.py`` measures the split.
 """
 
 from __future__ import annotations
@@ -482,6 +485,10 @@ def couple_free(f2, owner, ids, x, e, w, opp, rho0, mass, inertia, q, v, wb, fex
             sfz = 0.0
             b0 = lbase[k, i]
             end = b0 + lcnt[k, i]
+            # The scattered reads of f* first, in a loop without branches: their cache misses
+            # (f is out of cache after the sweep) overlap instead of waiting one by one.
+            for pos in range(b0, end):
+                LF[pos - off0] = f2[i, LX[pos]]
             pos = b0
             while pos < end:
                 xn = LX[pos]
@@ -494,12 +501,12 @@ def couple_free(f2, owner, ids, x, e, w, opp, rho0, mass, inertia, q, v, wb, fex
                     LM[0, pos] = LM[0, end]
                     LM[1, pos] = LM[1, end]
                     LM[2, pos] = LM[2, end]
+                    LF[pos - off0] = LF[end - off0]
                     continue
                 m0 = LM[0, pos]
                 m1 = LM[1, pos]
                 m2 = LM[2, pos]
-                fv = f2[i, xn]
-                LF[pos - off0] = fv
+                fv = LF[pos - off0]
                 pos += 1
                 fv -= wr
                 rx = m0 - X0
@@ -844,31 +851,13 @@ def _node_vector(node, xk, G):
 
 
 @njit(cache=True)
-def apply_changes(ids, chg_off, chg_node, chg_d, chg_n, all_ids, rect, run_off, z1, z2, x, v, om, owner, count,
-                  touched, acq, touch_list, unc_list, unc_old, f2, w, rho0, imp, moved, G, L):
-    """Apply the coverage changes of a move and settle the owners (module docstring): momentum of
-    covered nodes to the particle, uncovered nodes refilled at the surface velocity, links updated
-    with each owner. ``moved`` (3,) receives the momentum that left the fluid. Returns
-    ``(n_covered, n_uncovered)``. Serial: the changes are few (surface nodes that moved)."""
+def _settle_owners(nt, touch_list, new_own, all_ids, rect, run_off, z1, z2, owner, count, acq, f2, jb, G):
+    """New owner of each touched node (module docstring rules) and, for a fluid node a particle
+    covers, its momentum ``j = sum_i f_i e_i`` into ``jb``. The owner map is not changed here, so
+    the nodes are independent: a loop with no other work between the scattered reads of the
+    populations, which then overlap."""
     dims, az, origin, periodic, xmap, ymap, zmap, e = G
-    nt = 0
-    for m in range(ids.shape[0]):
-        k = ids[m]
-        for c in range(chg_off[m], chg_off[m] + chg_n[m]):
-            node = chg_node[c]
-            if owner[node] == WALL:
-                continue
-            d = chg_d[c]
-            count[node] += d
-            if d > 0:
-                acq[node] = k
-            if not touched[node]:
-                touched[node] = True
-                touch_list[nt] = node
-                nt += 1
     Q = e.shape[0]
-    n_cov = 0
-    n_unc = 0
     for t in range(nt):
         node = touch_list[t]
         old = owner[node]
@@ -889,11 +878,8 @@ def apply_changes(ids, chg_off, chg_node, chg_d, chg_n, all_ids, rect, run_off, 
                     if new == FLUID:  # a count without a covering shape cannot happen; trust the shapes
                         count[node] = 0
         acq[node] = -1
-        if new == old:
-            continue
-        if old == FLUID:
-            # a fluid node swallowed: its momentum goes to the particle
-            r = _node_vector(node, x[new], G)
+        new_own[t] = new
+        if old == FLUID and new >= 0:
             jx = 0.0
             jy = 0.0
             jz = 0.0
@@ -902,21 +888,18 @@ def apply_changes(ids, chg_off, chg_node, chg_d, chg_n, all_ids, rect, run_off, 
                 jx += e[i, 0] * fv
                 jy += e[i, 1] * fv
                 jz += e[i, 2] * fv
-            imp[new, 0] += jx
-            imp[new, 1] += jy
-            imp[new, 2] += jz
-            moved[0] += jx
-            moved[1] += jy
-            moved[2] += jz
-            imp[new, 3] += r[1] * jz - r[2] * jy
-            imp[new, 4] += r[2] * jx - r[0] * jz
-            imp[new, 5] += r[0] * jy - r[1] * jx
-            n_cov += 1
-        elif new == FLUID:
-            unc_list[n_unc] = node
-            unc_old[n_unc] = old
-            n_unc += 1
-        _set_owner(node, new, owner, x, G, L)
+            jb[t, 0] = jx
+            jb[t, 1] = jy
+            jb[t, 2] = jz
+
+
+@njit(cache=True)
+def _fill_uncovered(n_unc, unc_list, unc_old, x, v, om, owner, touched, f2, w, rho0, ub, G):
+    """Equilibrium at the surface velocity in each uncovered node (module docstring); ``ub[u]``
+    receives ``(rho u_b, r)``. Reads only untouched fluid nodes and writes only uncovered ones,
+    so the nodes are independent (a tight loop whose memory accesses overlap)."""
+    dims, az, origin, periodic, xmap, ymap, zmap, e = G
+    Q = e.shape[0]
     ny = dims[1]
     for u in range(n_unc):
         node = unc_list[u]
@@ -945,18 +928,108 @@ def apply_changes(ids, chg_off, chg_node, chg_d, chg_n, all_ids, rect, run_off, 
         for i in range(Q):
             eu = e[i, 0] * ux + e[i, 1] * uy + e[i, 2] * uz
             f2[i, node] = w[i] * rho * (1.0 + 3.0 * eu + 4.5 * eu * eu - usq)
-        px = rho * ux
-        py = rho * uy
-        pz = rho * uz
+        ub[u, 0] = rho * ux
+        ub[u, 1] = rho * uy
+        ub[u, 2] = rho * uz
+        ub[u, 3] = r[0]
+        ub[u, 4] = r[1]
+        ub[u, 5] = r[2]
+
+
+@njit(cache=True)
+def _count_changes(ids, chg_off, chg_node, chg_d, chg_n, owner, count, touched, acq, touch_list):
+    nt = 0
+    for m in range(ids.shape[0]):
+        k = ids[m]
+        for c in range(chg_off[m], chg_off[m] + chg_n[m]):
+            node = chg_node[c]
+            if owner[node] == WALL:
+                continue
+            d = chg_d[c]
+            count[node] += d
+            if d > 0:
+                acq[node] = k
+            if not touched[node]:
+                touched[node] = True
+                touch_list[nt] = node
+                nt += 1
+    return nt
+
+
+@njit(cache=True)
+def _change_owners(nt, touch_list, new_own, jb, x, owner, unc_list, unc_old, imp, moved, G, L):
+    # Serial, in the order of the touched list: the owner changes append links, and the impulse
+    # sums keep one order (results independent of the thread count).
+    n_cov = 0
+    n_unc = 0
+    for t in range(nt):
+        node = touch_list[t]
+        old = owner[node]
+        new = new_own[t]
+        if new == old:
+            continue
+        if old == FLUID:
+            # a fluid node swallowed: its momentum goes to the particle
+            r = _node_vector(node, x[new], G)
+            jx = jb[t, 0]
+            jy = jb[t, 1]
+            jz = jb[t, 2]
+            imp[new, 0] += jx
+            imp[new, 1] += jy
+            imp[new, 2] += jz
+            moved[0] += jx
+            moved[1] += jy
+            moved[2] += jz
+            imp[new, 3] += r[1] * jz - r[2] * jy
+            imp[new, 4] += r[2] * jx - r[0] * jz
+            imp[new, 5] += r[0] * jy - r[1] * jx
+            n_cov += 1
+        elif new == FLUID:
+            unc_list[n_unc] = node
+            unc_old[n_unc] = old
+            n_unc += 1
+        _set_owner(node, new, owner, x, G, L)
+    return n_cov, n_unc
+
+
+@njit(cache=True)
+def _uncovered_impulse(n_unc, unc_old, ub, imp, moved):
+    # the particle pays the momentum put into its uncovered nodes, in list order
+    for u in range(n_unc):
+        k = unc_old[u]
+        px = ub[u, 0]
+        py = ub[u, 1]
+        pz = ub[u, 2]
         imp[k, 0] -= px
         imp[k, 1] -= py
         imp[k, 2] -= pz
         moved[0] -= px
         moved[1] -= py
         moved[2] -= pz
-        imp[k, 3] -= r[1] * pz - r[2] * py
-        imp[k, 4] -= r[2] * px - r[0] * pz
-        imp[k, 5] -= r[0] * py - r[1] * px
+        imp[k, 3] -= ub[u, 4] * pz - ub[u, 5] * py
+        imp[k, 4] -= ub[u, 5] * px - ub[u, 3] * pz
+        imp[k, 5] -= ub[u, 3] * py - ub[u, 4] * px
+
+
+@njit(cache=True)
+def apply_changes(ids, chg_off, chg_node, chg_d, chg_n, all_ids, rect, run_off, z1, z2, x, v, om, owner, count,
+                  touched, acq, touch_list, unc_list, unc_old, f2, w, rho0, imp, moved, G, L, new_own, jb, ub):
+    """Apply the coverage changes of a move and settle the owners (module docstring): momentum of
+    covered nodes to the particle, uncovered nodes refilled at the surface velocity, links updated
+    with each owner. ``moved`` (3,) receives the momentum that left the fluid. Returns
+    ``(n_covered, n_uncovered)``.
+
+    Serial, in phases that keep the scattered accesses to ``f`` in tight loops of independent
+    nodes (their cache misses overlap): coverage counts; new owners and the covered nodes'
+    momentum; owner changes with their links and the covered impulses (in touch order); refill of
+    the uncovered nodes; their impulses (in list order). Running the node phases in parallel
+    gained nothing measurable and cost much on a loaded machine (each parallel region waits for
+    its slowest thread)."""
+    nt = _count_changes(ids, chg_off, chg_node, chg_d, chg_n, owner, count, touched, acq, touch_list)
+    _settle_owners(nt, touch_list, new_own, all_ids, rect, run_off, z1, z2, owner, count, acq, f2, jb, G)
+    n_cov, n_unc = _change_owners(nt, touch_list, new_own, jb, x, owner, unc_list, unc_old, imp, moved, G, L)
+    _fill_uncovered(n_unc, unc_list, unc_old, x, v, om, owner, touched, f2, w, rho0, ub, G)
+    _uncovered_impulse(n_unc, unc_old, ub, imp, moved)
     for t in range(nt):
         touched[touch_list[t]] = False
     return n_cov, n_unc
@@ -1102,6 +1175,9 @@ class ParticleSystem:
         self.touch_list = np.zeros(max(tot, 1), np.int64)
         self.unc_list = np.zeros(max(tot, 1), np.int64)
         self.unc_old = np.zeros(max(tot, 1), np.int64)
+        # per touched node: new owner, covered momentum, uncovered (rho u_b, r); a tuple, so that
+        # checkpoints skip it (scratch)
+        self.remap_scratch = (np.zeros(max(tot, 1), np.int64), np.zeros((max(tot, 1), 3)), np.zeros((max(tot, 1), 6)))
         # node state
         size = nx * ny * self.az
         owner = np.full((nx, ny, self.az), WALL, dtype=np.int32)
@@ -1214,7 +1290,7 @@ class ParticleSystem:
             ids, self.chg_off, self.chg_node, self.chg_d, self.chg_n, self.all_ids, self.rect_n, self.run_off,
             self.z1_n, self.z2_n, b.x, b.v, self.om, self.owner, self.count, self.touched, self.acq,
             self.touch_list, self.unc_list, self.unc_old, f2, self.w, self.rho0, self.imp, self.moved, self.G,
-            self.L)
+            self.L, *self.remap_scratch)
         self.n_fluid -= self.last_cover[0] - self.last_cover[1]
         self._check_links()
         wrap_positions(ids, b.x, self.lo, self.dims, self.periodic, self.rect_n, self.run_off, self.z1_n, self.z2_n,
@@ -1448,3 +1524,4 @@ def particle_effects(system: ParticleSystem, flux_control: bool = False, bouzidi
     before = [ParticleFluxCorrection(system, wall_links)] if flux_control and system.n else []
     after = [ParticleMotion(system), MassCorrection(system)] if len(system.free_ids) else []
     return pre, before, after
+

@@ -323,3 +323,43 @@ def test_scene_without_particles_runs_no_particle_effect():
     sim = simulation_from_scene(scene, derive(scene))
     assert sim.particles is None
     assert not any("particle" in e.name for e in sim.effects)
+
+
+@pytest.mark.skipif(__import__("numba").config.NUMBA_NUM_THREADS < 2, reason="needs 2 numba threads")
+def test_moving_particles_give_bit_identical_results_on_one_and_two_threads():
+    # The coupling runs in parallel over particles and the remap in parallel over nodes; every
+    # sum keeps one order, so the thread count must not change a single bit (nor the link lists).
+    import numba
+
+    def run(threads):
+        numba.set_num_threads(threads)
+        grid = bnd.pipe_grid(LAT, 20, 32)
+        rng = np.random.default_rng(5)
+        bodies = Bodies.concatenate([
+            Bodies.make(shapes.CUBE, [3.0, 3.0, 3.0], 1.0, [[3.0, -2.0, 6.0], [-4.0, 3.0, 22.0]],
+                        q=random_quaternions(2, rng), v=[[0.02, 0.01, 0.06], [-0.01, 0.02, 0.05]],
+                        wb=[[0.02, -0.01, 0.03], [0.0, 0.03, -0.02]]),
+            Bodies.make(shapes.CYLINDER, [2.5, 2.5, 3.5], 1.0, [[0.0, 0.0, 14.0]], q=random_quaternions(1, rng),
+                        v=[[0.0, 0.0, 0.08]], wb=[[0.03, 0.0, 0.0]]),
+        ])
+        system = cp.ParticleSystem(grid, bodies)
+        walls = fx.wall_effects(grid, "bounce_back", {})
+        pre, before, after = cp.particle_effects(system, flux_control=True, wall_links=[w.links for w in walls])
+        ctl = fx.FlowRateControl(0.05 * math.pi * 100.0, grid.radius, 0.1, 32)
+        sim = Simulation(grid, omega=1 / 0.8, force=(0.0, 0.0, ctl.f_ref), flux=True,
+                         extra_effects=walls + pre + before + [ctl] + after)
+        sim.step(60)
+        return sim, system
+
+    before = numba.get_num_threads()
+    try:
+        (s1, p1), (s2, p2) = run(1), run(2)
+    finally:
+        numba.set_num_threads(before)
+    assert p1.last_cover != (0, 0)  # nodes were covered and uncovered
+    assert np.array_equal(s1.f, s2.f)
+    for a in ("owner", "lcnt", "LX", "LS", "LM", "imp"):
+        assert np.array_equal(getattr(p1, a), getattr(p2, a)), a
+    for a in ("x", "v", "q", "wb"):
+        assert np.array_equal(getattr(p1.bodies, a), getattr(p2.bodies, a)), a
+    assert s1.last_flux == s2.last_flux
