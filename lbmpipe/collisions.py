@@ -70,10 +70,12 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from numba import njit
+from numba import njit, prange
 
 from .effects import Effect
-from .contact import bounding_radii, body_contact, candidate_pairs, pipe_wall_contact, plane_wall_contact
+from .contact import (SCRATCH_SIZE, _support3, body_contact_ws, bounding_radii, candidate_pairs, new_scratch,
+                      pipe_wall_contact, plane_wall_contact)
+from .shapes import CYLINDER, SPHERE, bounding_radius
 from .rigid import Bodies, quat_to_matrices
 
 PIPE = 0
@@ -202,22 +204,23 @@ def _impulse(i, j, sx, sy, sz, c, p, x, v, wb, Rm, im, iinv, k_rest, vtol):
     if vn <= vtol:
         return 0.0
     # a_i = J_i^-1 (l_is x p_is) in the body frame (Eq. (18)); t_i = ([A_i a_i] x l_i) . p (Eq. (19))
-    a1 = np.empty(3)
-    a2 = np.zeros(3)
     ls0 = Rm[i, 0, 0] * l1x + Rm[i, 1, 0] * l1y + Rm[i, 2, 0] * l1z
     ls1 = Rm[i, 0, 1] * l1x + Rm[i, 1, 1] * l1y + Rm[i, 2, 1] * l1z
     ls2 = Rm[i, 0, 2] * l1x + Rm[i, 1, 2] * l1y + Rm[i, 2, 2] * l1z
     ps0 = Rm[i, 0, 0] * p[0] + Rm[i, 1, 0] * p[1] + Rm[i, 2, 0] * p[2]
     ps1 = Rm[i, 0, 1] * p[0] + Rm[i, 1, 1] * p[1] + Rm[i, 2, 1] * p[2]
     ps2 = Rm[i, 0, 2] * p[0] + Rm[i, 1, 2] * p[1] + Rm[i, 2, 2] * p[2]
-    a1[0] = iinv[i, 0] * (ls1 * ps2 - ls2 * ps1)
-    a1[1] = iinv[i, 1] * (ls2 * ps0 - ls0 * ps2)
-    a1[2] = iinv[i, 2] * (ls0 * ps1 - ls1 * ps0)
-    b0 = Rm[i, 0, 0] * a1[0] + Rm[i, 0, 1] * a1[1] + Rm[i, 0, 2] * a1[2]
-    b1 = Rm[i, 1, 0] * a1[0] + Rm[i, 1, 1] * a1[1] + Rm[i, 1, 2] * a1[2]
-    b2 = Rm[i, 2, 0] * a1[0] + Rm[i, 2, 1] * a1[1] + Rm[i, 2, 2] * a1[2]
+    a10 = iinv[i, 0] * (ls1 * ps2 - ls2 * ps1)
+    a11 = iinv[i, 1] * (ls2 * ps0 - ls0 * ps2)
+    a12 = iinv[i, 2] * (ls0 * ps1 - ls1 * ps0)
+    b0 = Rm[i, 0, 0] * a10 + Rm[i, 0, 1] * a11 + Rm[i, 0, 2] * a12
+    b1 = Rm[i, 1, 0] * a10 + Rm[i, 1, 1] * a11 + Rm[i, 1, 2] * a12
+    b2 = Rm[i, 2, 0] * a10 + Rm[i, 2, 1] * a11 + Rm[i, 2, 2] * a12
     t1 = (b1 * l1z - b2 * l1y) * p[0] + (b2 * l1x - b0 * l1z) * p[1] + (b0 * l1y - b1 * l1x) * p[2]
     den = im[i] + t1
+    a20 = 0.0
+    a21 = 0.0
+    a22 = 0.0
     if j >= 0:
         ls0 = Rm[j, 0, 0] * l2x + Rm[j, 1, 0] * l2y + Rm[j, 2, 0] * l2z
         ls1 = Rm[j, 0, 1] * l2x + Rm[j, 1, 1] * l2y + Rm[j, 2, 1] * l2z
@@ -225,24 +228,30 @@ def _impulse(i, j, sx, sy, sz, c, p, x, v, wb, Rm, im, iinv, k_rest, vtol):
         ps0 = Rm[j, 0, 0] * p[0] + Rm[j, 1, 0] * p[1] + Rm[j, 2, 0] * p[2]
         ps1 = Rm[j, 0, 1] * p[0] + Rm[j, 1, 1] * p[1] + Rm[j, 2, 1] * p[2]
         ps2 = Rm[j, 0, 2] * p[0] + Rm[j, 1, 2] * p[1] + Rm[j, 2, 2] * p[2]
-        a2[0] = iinv[j, 0] * (ls1 * ps2 - ls2 * ps1)
-        a2[1] = iinv[j, 1] * (ls2 * ps0 - ls0 * ps2)
-        a2[2] = iinv[j, 2] * (ls0 * ps1 - ls1 * ps0)
-        b0 = Rm[j, 0, 0] * a2[0] + Rm[j, 0, 1] * a2[1] + Rm[j, 0, 2] * a2[2]
-        b1 = Rm[j, 1, 0] * a2[0] + Rm[j, 1, 1] * a2[1] + Rm[j, 1, 2] * a2[2]
-        b2 = Rm[j, 2, 0] * a2[0] + Rm[j, 2, 1] * a2[1] + Rm[j, 2, 2] * a2[2]
+        a20 = iinv[j, 0] * (ls1 * ps2 - ls2 * ps1)
+        a21 = iinv[j, 1] * (ls2 * ps0 - ls0 * ps2)
+        a22 = iinv[j, 2] * (ls0 * ps1 - ls1 * ps0)
+        b0 = Rm[j, 0, 0] * a20 + Rm[j, 0, 1] * a21 + Rm[j, 0, 2] * a22
+        b1 = Rm[j, 1, 0] * a20 + Rm[j, 1, 1] * a21 + Rm[j, 1, 2] * a22
+        b2 = Rm[j, 2, 0] * a20 + Rm[j, 2, 1] * a21 + Rm[j, 2, 2] * a22
         t2 = (b1 * l2z - b2 * l2y) * p[0] + (b2 * l2x - b0 * l2z) * p[1] + (b0 * l2y - b1 * l2x) * p[2]
         den += im[j] + t2
     if not den > 0.0:
         return 0.0  # both bodies fixed
     imp = (1.0 + k_rest) * vn / den  # Eq. (19) / Eq. (21), divided through by m_1
+    f = imp * im[i]
     for k in range(3):
-        v[i, k] -= imp * im[i] * p[k]  # Eq. (16)
-        wb[i, k] -= imp * a1[k]  # Eq. (18)
+        v[i, k] -= f * p[k]  # Eq. (16)
+    wb[i, 0] -= imp * a10  # Eq. (18)
+    wb[i, 1] -= imp * a11
+    wb[i, 2] -= imp * a12
     if j >= 0:
+        f = imp * im[j]
         for k in range(3):
-            v[j, k] += imp * im[j] * p[k]
-            wb[j, k] += imp * a2[k]
+            v[j, k] += f * p[k]
+        wb[j, 0] += imp * a20
+        wb[j, 1] += imp * a21
+        wb[j, 2] += imp * a22
     return imp
 
 
@@ -312,20 +321,17 @@ def _advance_one(i, t, x, v, wb, Rm, xo, Ro):
 
 
 @njit(cache=True)
-def _toi_pair(i, j, sh, kind, h, x, v, wb, Rm, dt, manifold_tol, nrm, c, out_c):
+def _toi_pair(i, j, sh, kind, h, x, v, wb, Rm, dt, manifold_tol, nrm, c, out_c, ws, x1, x2, R1, R2):
     """Speculative contact of pair (i, j): if the bodies, moving freely, overlap at the end of the
     step, find by bisection the last time t before they touch and return True with the contact
     normal ``nrm`` at t and, in ``out_c``, the contact's material points carried back to the
-    present (their midpoint)."""
-    x1 = np.empty(3)
-    x2 = np.empty(3)
-    R1 = np.empty((3, 3))
-    R2 = np.empty((3, 3))
+    present (their midpoint). ``ws``, ``x1``, ``x2``, ``R1``, ``R2``: scratch. The overlap tests
+    need only the sign of the gap, so they skip the contact point (same gap bits)."""
     _advance_one(i, dt, x, v, wb, Rm, x1, R1)
     _advance_one(j, dt, x, v, wb, Rm, x2, R2)
     for k in range(3):
         x2[k] += sh[k]
-    if body_contact(kind[i], h[i], x1, R1, kind[j], h[j], x2, R2, 0.0, manifold_tol, nrm, c) >= 0.0:
+    if body_contact_ws(kind[i], h[i], x1, R1, kind[j], h[j], x2, R2, 0.0, manifold_tol, nrm, c, ws, False) >= 0.0:
         return False
     lo_t = 0.0
     hi_t = dt
@@ -335,7 +341,7 @@ def _toi_pair(i, j, sh, kind, h, x, v, wb, Rm, dt, manifold_tol, nrm, c, out_c):
         _advance_one(j, mid, x, v, wb, Rm, x2, R2)
         for k in range(3):
             x2[k] += sh[k]
-        if body_contact(kind[i], h[i], x1, R1, kind[j], h[j], x2, R2, 0.0, manifold_tol, nrm, c) < 0.0:
+        if body_contact_ws(kind[i], h[i], x1, R1, kind[j], h[j], x2, R2, 0.0, manifold_tol, nrm, c, ws, False) < 0.0:
             hi_t = mid
         else:
             lo_t = mid
@@ -343,7 +349,7 @@ def _toi_pair(i, j, sh, kind, h, x, v, wb, Rm, dt, manifold_tol, nrm, c, out_c):
     _advance_one(j, lo_t, x, v, wb, Rm, x2, R2)
     for k in range(3):
         x2[k] += sh[k]
-    body_contact(kind[i], h[i], x1, R1, kind[j], h[j], x2, R2, np.inf, manifold_tol, nrm, c)
+    body_contact_ws(kind[i], h[i], x1, R1, kind[j], h[j], x2, R2, np.inf, manifold_tol, nrm, c, ws, True)
     _carry_back2(c, x1, R1, i, 0.0, 0.0, 0.0, x, Rm, x2, R2, j, sh, out_c)
     return True
 
@@ -376,10 +382,8 @@ def _carry_back2(c, x1, R1, i, s0, s1, s2, x, Rm, x2, R2, j, sh, out):
 
 
 @njit(cache=True)
-def _toi_wall(i, kind, h, x, v, wb, Rm, dt, dcode, Rp, cx, cy, lo, hi, wn, manifold_tol, nrm, c, out_c):
-    """As _toi_pair for body i and the wall identified by its normal wn."""
-    x1 = np.empty(3)
-    R1 = np.empty((3, 3))
+def _toi_wall(i, kind, h, x, v, wb, Rm, dt, dcode, Rp, cx, cy, lo, hi, wn, manifold_tol, nrm, c, out_c, x1, R1):
+    """As _toi_pair for body i and the wall identified by its normal wn (x1, R1: scratch)."""
     _advance_one(i, dt, x, v, wb, Rm, x1, R1)
     if _wall_gap(kind[i], h[i], x1, R1, dcode, Rp, cx, cy, lo, hi, wn, manifold_tol, nrm, c) >= 0.0:
         return False
@@ -399,45 +403,174 @@ def _toi_wall(i, kind, h, x, v, wb, Rm, dt, dcode, Rp, cx, cy, lo, hi, wn, manif
 
 
 @njit(cache=True)
-def _wall_contacts(kind, h, x, Rm, rb, dcode, Rp, cx, cy, lo, hi, periodic, margin, manifold_tol):
+def _xy_extent(kind, h, R):
+    """Upper bound of the distance of a body point from the centre, projected on the pipe's
+    cross-section (x, y): a cylinder spans h_z |a_xy| along its axis a plus at most its radius
+    across; a box sum_k h_k |R_k,xy|. Never more than needed, at most the bounding radius."""
+    if kind == SPHERE:
+        return h[0]
+    if kind == CYLINDER:
+        return h[2] * math.sqrt(R[0, 2] * R[0, 2] + R[1, 2] * R[1, 2]) + h[0]
+    e = 0.0
+    for k in range(3):
+        e += h[k] * math.sqrt(R[0, k] * R[0, k] + R[1, k] * R[1, k])
+    return e
+
+
+_CHUNK = 8  # pairs (or bodies) per parallel work item: few allocations, enough items per thread
+# a gap this far above the swept distance is certainly still open at the end of the step (far
+# above the gap's accuracy, ~1e-9 of the body size)
+_SWEEP_SLACK = 1e-6
+# contact tests (narrow phase: candidate pairs) run in parallel only in batches at least this
+# large (a parallel region costs ~10 us on an idle machine, far more on a loaded one)
+_PAR_MIN = 4096
+_PAR_MIN_PAIRS = 256
+
+
+@njit(cache=True)
+def _wall_one(i, kind, h, x, Rm, rb, dcode, Rp, cx, cy, lo, hi, periodic, margin, reach, manifold_tol, use, sg, sn, sc,
+              nrm, c):
+    """Wall contacts of body i into its slots (pipe: 1; box: 2 per axis) if its bounding sphere
+    comes within ``margin`` of the wall. Pipe: the exact gap is computed only if a cheap lower
+    bound (centre distance + cross-section extent) is within ``reach``; otherwise that lower
+    bound (> reach) is stored, which no decision of the step can tell apart from the exact gap:
+    only ``gap <= reach`` activates a contact, and the projection re-measures any entry whose
+    bound (stored gap minus displacement) falls below ``-overlap_tol``."""
+    if dcode == 0:
+        ox = x[i, 0] - cx
+        oy = x[i, 1] - cy
+        rho = math.sqrt(ox * ox + oy * oy)
+        if rho + rb[i] < Rp - margin:
+            return
+        use[i, 0] = True
+        lb = Rp - (rho + min(rb[i], _xy_extent(kind[i], h[i], Rm[i])))
+        if lb > reach + 1e-9 * rb[i]:
+            sg[i, 0] = lb
+            for k in range(3):
+                sn[i, 0, k] = 0.0
+                sc[i, 0, k] = x[i, k]
+            return
+        sg[i, 0] = pipe_wall_contact(kind[i], h[i], x[i], Rm[i], Rp, cx, cy, manifold_tol, nrm, c)
+        for k in range(3):
+            sn[i, 0, k] = nrm[k]
+            sc[i, 0, k] = c[k]
+        return
+    for a in range(3):
+        if periodic[a]:
+            continue
+        for s in range(2):
+            side = -1.0 if s == 0 else 1.0
+            coord = lo[a] if side < 0.0 else hi[a]
+            if side * (coord - x[i, a]) - rb[i] > margin:
+                continue
+            t = 2 * a + s
+            use[i, t] = True
+            sg[i, t] = plane_wall_contact(kind[i], h[i], x[i], Rm[i], a, coord, side, manifold_tol, nrm, c)
+            for k in range(3):
+                sn[i, t, k] = nrm[k]
+                sc[i, t, k] = c[k]
+
+
+@njit(cache=True)
+def _narrow_chunk(ch, ncp, kind, h, x, Rm, rb, pi, pj, ps, max_gap, manifold_tol, cg, cn, cc,
+                  dcode, Rp, cx, cy, lo, hi, periodic, margin, reach, use, sg, sn, sc):
+    """Work item ``ch`` of the narrow phase: pairs ``ch * _CHUNK ...`` if ``ch < ncp``, else the
+    wall contacts of bodies ``(ch - ncp) * _CHUNK ...``."""
+    npair = pi.shape[0]
     n = x.shape[0]
-    cap = n if dcode == 0 else 6 * n
-    wi = np.empty(cap, dtype=np.int64)
-    wg = np.empty(cap)
-    wn = np.empty((cap, 3))
-    wc = np.empty((cap, 3))
-    m = 0
+    ws = new_scratch()
     nrm = np.empty(3)
     c = np.empty(3)
-    for i in range(n):
-        if dcode == 0:
-            ox = x[i, 0] - cx
-            oy = x[i, 1] - cy
-            if math.sqrt(ox * ox + oy * oy) + rb[i] < Rp - margin:
-                continue
-            g = pipe_wall_contact(kind[i], h[i], x[i], Rm[i], Rp, cx, cy, manifold_tol, nrm, c)
-            wi[m] = i
-            wg[m] = g
+    x2 = np.empty(3)
+    if ch < ncp:
+        for m in range(ch * _CHUNK, min(npair, ch * _CHUNK + _CHUNK)):
+            i = pi[m]
+            j = pj[m]
             for k in range(3):
-                wn[m, k] = nrm[k]
-                wc[m, k] = c[k]
-            m += 1
-        else:
-            for a in range(3):
-                if periodic[a]:
-                    continue
-                for side in (-1.0, 1.0):
-                    coord = lo[a] if side < 0.0 else hi[a]
-                    if side * (coord - x[i, a]) - rb[i] > margin:
-                        continue
-                    g = plane_wall_contact(kind[i], h[i], x[i], Rm[i], a, coord, side, manifold_tol, nrm, c)
-                    wi[m] = i
-                    wg[m] = g
+                x2[k] = x[j, k] + ps[m, k]
+            # the plane normal to the centre line often separates a pair by more than
+            # max_gap already: that separation is a lower bound of the gap, and two support
+            # points cost far less than GJK's iterations
+            d0 = x2[0] - x[i, 0]
+            d1 = x2[1] - x[i, 1]
+            d2 = x2[2] - x[i, 2]
+            dd = math.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
+            if dd > 0.0:
+                d0 /= dd
+                d1 /= dd
+                d2 /= dd
+                p10, p11, p12 = _support3(kind[i], h[i], x[i], Rm[i], False, d0, d1, d2)
+                p20, p21, p22 = _support3(kind[j], h[j], x2, Rm[j], False, -d0, -d1, -d2)
+                sep = d0 * (p20 - p10) + d1 * (p21 - p11) + d2 * (p22 - p12)
+                if sep > max_gap:
+                    cg[m] = sep
+                    cn[m, 0], cn[m, 1], cn[m, 2] = d0, d1, d2
                     for k in range(3):
-                        wn[m, k] = nrm[k]
-                        wc[m, k] = c[k]
-                    m += 1
-    return wi[:m], wg[:m], wn[:m], wc[:m]
+                        cc[m, k] = 0.5 * (x[i, k] + x2[k])
+                    continue
+            cg[m] = body_contact_ws(kind[i], h[i], x[i], Rm[i], kind[j], h[j], x2, Rm[j], max_gap, manifold_tol, nrm,
+                                    c, ws, True)
+            for k in range(3):
+                cn[m, k] = nrm[k]
+                cc[m, k] = c[k]
+    else:
+        b = ch - ncp
+        for i in range(b * _CHUNK, min(n, b * _CHUNK + _CHUNK)):
+            _wall_one(i, kind, h, x, Rm, rb, dcode, Rp, cx, cy, lo, hi, periodic, margin, reach, manifold_tol, use,
+                      sg, sn, sc, nrm, c)
+
+
+@njit(cache=True, parallel=True)
+def _narrow_par(ncp, nch, kind, h, x, Rm, rb, pi, pj, ps, max_gap, manifold_tol, cg, cn, cc,
+                dcode, Rp, cx, cy, lo, hi, periodic, margin, reach, use, sg, sn, sc):
+    for ch in prange(nch):
+        _narrow_chunk(ch, ncp, kind, h, x, Rm, rb, pi, pj, ps, max_gap, manifold_tol, cg, cn, cc,
+                      dcode, Rp, cx, cy, lo, hi, periodic, margin, reach, use, sg, sn, sc)
+
+
+@njit(cache=True)
+def _narrow_phase(kind, h, x, Rm, rb, pi, pj, ps, max_gap, manifold_tol, cg, cn, cc,
+                  dcode, Rp, cx, cy, lo, hi, periodic, margin, reach, use, sg, sn, sc):
+    """All pair gaps (``cg``, normals ``cn``, points ``cc``) and the wall gaps per body and slot
+    (``_wall_one``), in one parallel region if there are enough pairs (its start-up costs more
+    than a small problem's work, and far more on a loaded machine). Every pair and body writes
+    only its own rows, so the result does not depend on the thread count. Pair gaps above
+    ``max_gap`` may come back as lower bounds (> max_gap)."""
+    ncp = (pi.shape[0] + _CHUNK - 1) // _CHUNK
+    nch = ncp + (x.shape[0] + _CHUNK - 1) // _CHUNK
+    if pi.shape[0] >= _PAR_MIN_PAIRS:
+        _narrow_par(ncp, nch, kind, h, x, Rm, rb, pi, pj, ps, max_gap, manifold_tol, cg, cn, cc,
+                    dcode, Rp, cx, cy, lo, hi, periodic, margin, reach, use, sg, sn, sc)
+    else:
+        for ch in range(nch):
+            _narrow_chunk(ch, ncp, kind, h, x, Rm, rb, pi, pj, ps, max_gap, manifold_tol, cg, cn, cc,
+                          dcode, Rp, cx, cy, lo, hi, periodic, margin, reach, use, sg, sn, sc)
+
+
+@njit(cache=True)
+def _gather_walls(use, sg, sn, sc):
+    """The wall contacts in body order (then axis, side): (body, gap, normal, point)."""
+    n, slots = use.shape
+    cnt = 0
+    for i in range(n):
+        for t in range(slots):
+            if use[i, t]:
+                cnt += 1
+    wi = np.empty(cnt, dtype=np.int64)
+    wg = np.empty(cnt)
+    wn = np.empty((cnt, 3))
+    wc = np.empty((cnt, 3))
+    m = 0
+    for i in range(n):
+        for t in range(slots):
+            if use[i, t]:
+                wi[m] = i
+                wg[m] = sg[i, t]
+                for k in range(3):
+                    wn[m, k] = sn[i, t, k]
+                    wc[m, k] = sc[i, t, k]
+                m += 1
+    return wi, wg, wn, wc
 
 
 @njit(cache=True)
@@ -455,6 +588,82 @@ def _wall_gap(kind, h, x, R, dcode, Rp, cx, cy, lo, hi, wn, manifold_tol, nrm, c
 
 
 @njit(cache=True)
+def _apart_after(i, j, sh, axis, kind, h, x, v, wb, Rm, dt, x1, x2, R1, R2):
+    """True if, after a free step of dt, the plane normal to ``axis`` (the present contact normal,
+    1 -> 2) still separates the pair by more than 1e-9 of the body size: then GJK, which reports
+    an overlap only within 1e-10 of the body size of touching, finds the end-of-step gap >= 0
+    and ``_toi_pair`` returns False; this test costs two support points instead of a GJK run."""
+    _advance_one(i, dt, x, v, wb, Rm, x1, R1)
+    _advance_one(j, dt, x, v, wb, Rm, x2, R2)
+    a0 = axis[0]
+    a1 = axis[1]
+    a2 = axis[2]
+    p10, p11, p12 = _support3(kind[i], h[i], x1, R1, False, a0, a1, a2)
+    p20, p21, p22 = _support3(kind[j], h[j], x2, R2, False, -a0, -a1, -a2)
+    sep = a0 * (p20 + sh[0] - p10) + a1 * (p21 + sh[1] - p11) + a2 * (p22 + sh[2] - p12)
+    return sep > 1e-9 * (bounding_radius(kind[i], h[i]) + bounding_radius(kind[j], h[j]))
+
+
+@njit(cache=True)
+def _test_scratch():
+    return np.empty(SCRATCH_SIZE), np.empty(3), np.empty(3), np.empty(3), np.empty(3), np.empty((3, 3)), np.empty((3, 3))
+
+
+@njit(cache=True)
+def _activate_one(m, pi, pj, ps, cg, cn, cc, wi, wg, wn, wc, npair, kind, h, x, v, wb, Rm, sweep, dt, contact_gap, spec,
+                  vtol, manifold_tol, dcode, Rp, cx, cy, lo, hi, on_p, gp_n, gp_c, on_w, gw_n, gw_c, scr):
+    """Is contact m (m < npair: pair; else wall m - npair) active? (a) touching (gap <=
+    contact_gap) and approaching: with the present geometry; or (b) with ``spec``, overlapping
+    after a free step (``_toi_pair`` / ``_toi_wall``). A contact's free motion cannot close more
+    than the sum of its bodies' point speeds |v| + |omega| r_b times dt, so a gap wider than that
+    skips (b) (it would find no overlap), as does a present normal that still separates the pair
+    at the end of the step. Writes only contact m's entries."""
+    ws, pnrm, pc, x1, x2, R1, R2 = scr
+    if m < npair:
+        i = pi[m]
+        j = pj[m]
+        if cg[m] <= contact_gap and _approach(i, j, ps[m], cc[m], cn[m], x, v, wb, Rm) > vtol:
+            on_p[m] = True
+            for k in range(3):
+                gp_n[m, k] = cn[m, k]
+                gp_c[m, k] = cc[m, k]
+        elif (spec and cg[m] - (sweep[i] + sweep[j]) * dt <= _SWEEP_SLACK
+              and not _apart_after(i, j, ps[m], cn[m], kind, h, x, v, wb, Rm, dt, x1, x2, R1, R2)):
+            if _toi_pair(i, j, ps[m], kind, h, x, v, wb, Rm, dt, manifold_tol, pnrm, pc, gp_c[m], ws, x1, x2, R1, R2):
+                on_p[m] = True
+                for k in range(3):
+                    gp_n[m, k] = pnrm[k]
+    else:
+        m -= npair
+        i = wi[m]
+        if wg[m] <= contact_gap and _approach(i, -1, wn[m], wc[m], wn[m], x, v, wb, Rm) > vtol:
+            on_w[m] = True
+            for k in range(3):
+                gw_n[m, k] = wn[m, k]
+                gw_c[m, k] = wc[m, k]
+        elif spec and wg[m] - sweep[i] * dt <= _SWEEP_SLACK:
+            if _toi_wall(i, kind, h, x, v, wb, Rm, dt, dcode, Rp, cx, cy, lo, hi, wn[m], manifold_tol, pnrm, pc, gw_c[m],
+                         x1, R1):
+                on_w[m] = True
+                for k in range(3):
+                    gw_n[m, k] = pnrm[k]
+
+
+@njit(cache=True, parallel=True)
+def _activate_par(todo, ntodo, pi, pj, ps, cg, cn, cc, wi, wg, wn, wc, npair, kind, h, x, v, wb, Rm, sweep, dt,
+                  contact_gap, spec, vtol, manifold_tol, dcode, Rp, cx, cy, lo, hi, on_p, gp_n, gp_c, on_w, gw_n, gw_c):
+    """``_activate_one`` for the contacts ``todo[:ntodo]``, in parallel (thread-count independent:
+    each writes only its own entries and reads velocities no one writes meanwhile)."""
+    nch = (ntodo + _CHUNK - 1) // _CHUNK
+    for ch in prange(nch):
+        scr = _test_scratch()
+        for t in range(ch * _CHUNK, min(ntodo, ch * _CHUNK + _CHUNK)):
+            _activate_one(todo[t], pi, pj, ps, cg, cn, cc, wi, wg, wn, wc, npair, kind, h, x, v, wb, Rm, sweep, dt,
+                          contact_gap, spec, vtol, manifold_tol, dcode, Rp, cx, cy, lo, hi, on_p, gp_n, gp_c, on_w, gw_n,
+                          gw_c, scr)
+
+
+@njit(cache=True)
 def _resolve_kernel(
     kind, h, mass, inertia, x, v, q, wb, fixed,
     dcode, Rp, cx, cy, lo, hi, periodic,
@@ -466,15 +675,17 @@ def _resolve_kernel(
     rb = bounding_radii(kind, h)
     im = np.zeros(n)
     iinv = np.zeros((n, 3))
+    sweep = np.empty(n)  # fastest point speed |v| + |omega| r_b of each body
     vmax = 0.0
     for i in range(n):
+        sp = math.sqrt(v[i, 0] ** 2 + v[i, 1] ** 2 + v[i, 2] ** 2)
+        sp += math.sqrt(wb[i, 0] ** 2 + wb[i, 1] ** 2 + wb[i, 2] ** 2) * rb[i]
+        sweep[i] = sp
         if fixed[i]:
             continue
         im[i] = 1.0 / mass[i]
         for k in range(3):
             iinv[i, k] = 1.0 / inertia[i, k]
-        sp = math.sqrt(v[i, 0] ** 2 + v[i, 1] ** 2 + v[i, 2] ** 2)
-        sp += math.sqrt(wb[i, 0] ** 2 + wb[i, 1] ** 2 + wb[i, 2] ** 2) * rb[i]
         vmax = max(vmax, sp)
     # gap below which a contact can become active within this step
     reach = contact_gap + (2.0 * vmax * dt if spec else 0.0)
@@ -489,19 +700,19 @@ def _resolve_kernel(
     cg = np.empty(npair)
     cn = np.empty((npair, 3))
     cc = np.empty((npair, 3))
-    nrm = np.empty(3)
-    c = np.empty(3)
-    x2 = np.empty(3)
-    for m in range(npair):
-        i = pi[m]
-        j = pj[m]
-        for k in range(3):
-            x2[k] = x[j, k] + ps[m, k]
-        cg[m] = body_contact(kind[i], h[i], x[i], Rm[i], kind[j], h[j], x2, Rm[j], margin, manifold_tol, nrm, c)
-        for k in range(3):
-            cn[m, k] = nrm[k]
-            cc[m, k] = c[k]
-    wi, wg, wn, wc = _wall_contacts(kind, h, x, Rm, rb, dcode, Rp, cx, cy, lo, hi, periodic, margin, manifold_tol)
+    # Gaps beyond ``contact_gap`` may come back as lower bounds (> contact_gap), and GJK stops
+    # early on them: nothing in this step tells them from the exact gap. Only a touching contact
+    # (gap <= contact_gap) uses its present geometry; a wider one within ``reach`` is only
+    # tested for a speculative contact, which looks at the end of the step (the gap serves as a
+    # bound there); the projection re-measures whatever its displacement bound says might overlap.
+    slots = 1 if dcode == PIPE else 6
+    use = np.zeros((n, slots), dtype=np.bool_)
+    sg = np.empty((n, slots))
+    sn = np.empty((n, slots, 3))
+    sc = np.empty((n, slots, 3))
+    _narrow_phase(kind, h, x, Rm, rb, pi, pj, ps, contact_gap, manifold_tol, cg, cn, cc,
+                  dcode, Rp, cx, cy, lo, hi, periodic, margin, reach, use, sg, sn, sc)
+    wi, wg, wn, wc = _gather_walls(use, sg, sn, sc)
     nwall = wi.shape[0]
     ov = 0.0
     npc = 0
@@ -527,7 +738,10 @@ def _resolve_kernel(
     #     normal there and the contact's material points carried back to the present (their
     #     midpoint, so that both bodies get -/+ I p at one point). This catches corners turning
     #     into contact as well as approaching faces.
-    # Impulses change velocities, so the prediction is redone until a round applies none.
+    # Impulses change velocities, so the prediction is redone until a round applies none. The
+    # test of a contact depends only on its two bodies' velocities, so a round re-tests only the
+    # contacts with a body that received an impulse since their last test (the others would
+    # give the same answer again).
     if do_impulses:
         gp_n = cn.copy()  # impulse geometry per pair: normal and point
         gp_c = cc.copy()
@@ -538,48 +752,68 @@ def _resolve_kernel(
         vtol = 1e-12 * vmax
         nimp = 0
         sweeps = 0
-        pnrm = np.empty(3)
-        pc = np.empty(3)
+        # contacts within reach (pairs, then walls as npair + m), in the order of the sweeps
+        near = np.empty(npair + nwall, dtype=np.int64)
+        nnear = 0
+        for m in range(npair):
+            if cg[m] <= reach:
+                near[nnear] = m
+                nnear += 1
+        for m in range(nwall):
+            if wg[m] <= reach:
+                near[nnear] = npair + m
+                nnear += 1
+        ver = np.zeros(n, dtype=np.int64)  # impulses received by each body so far
+        seen1 = np.full(npair + nwall, -1, dtype=np.int64)  # ver of the bodies at a contact's last test
+        seen2 = np.full(npair + nwall, -1, dtype=np.int64)
+        todo = np.empty(nnear, dtype=np.int64)
+        scr = _test_scratch()
+        act = np.empty(nnear, dtype=np.int64)
         for rnd in range(max_sweeps):
-            for m in range(npair):
-                if cg[m] > reach:
-                    continue
-                i = pi[m]
-                j = pj[m]
-                if cg[m] <= contact_gap and _approach(i, j, ps[m], cc[m], cn[m], x, v, wb, Rm) > vtol:
-                    on_p[m] = True
-                    for k in range(3):
-                        gp_n[m, k] = cn[m, k]
-                        gp_c[m, k] = cc[m, k]
-                elif spec and _toi_pair(i, j, ps[m], kind, h, x, v, wb, Rm, dt, manifold_tol, pnrm, pc, gp_c[m]):
-                    on_p[m] = True
-                    for k in range(3):
-                        gp_n[m, k] = pnrm[k]
-            for m in range(nwall):
-                if wg[m] > reach:
-                    continue
-                i = wi[m]
-                if wg[m] <= contact_gap and _approach(i, -1, wn[m], wc[m], wn[m], x, v, wb, Rm) > vtol:
-                    on_w[m] = True
-                    for k in range(3):
-                        gw_n[m, k] = wn[m, k]
-                        gw_c[m, k] = wc[m, k]
-                elif spec and _toi_wall(i, kind, h, x, v, wb, Rm, dt, dcode, Rp, cx, cy, lo, hi, wn[m], manifold_tol,
-                                        pnrm, pc, gw_c[m]):
-                    on_w[m] = True
-                    for k in range(3):
-                        gw_n[m, k] = pnrm[k]
+            ntodo = 0
+            for t in range(nnear):
+                m = near[t]
+                i = pi[m] if m < npair else wi[m - npair]
+                j = pj[m] if m < npair else i
+                if ver[i] != seen1[m] or ver[j] != seen2[m]:
+                    seen1[m] = ver[i]
+                    seen2[m] = ver[j]
+                    todo[ntodo] = m
+                    ntodo += 1
+            if ntodo >= _PAR_MIN:
+                _activate_par(todo, ntodo, pi, pj, ps, cg, cn, cc, wi, wg, wn, wc, npair, kind, h, x, v, wb, Rm, sweep,
+                              dt, contact_gap, spec, vtol, manifold_tol, dcode, Rp, cx, cy, lo, hi, on_p, gp_n, gp_c, on_w,
+                              gw_n, gw_c)
+            else:
+                for t in range(ntodo):
+                    _activate_one(todo[t], pi, pj, ps, cg, cn, cc, wi, wg, wn, wc, npair, kind, h, x, v, wb, Rm, sweep,
+                                  dt, contact_gap, spec, vtol, manifold_tol, dcode, Rp, cx, cy, lo, hi, on_p, gp_n, gp_c,
+                                  on_w, gw_n, gw_c, scr)
+            nact = 0
+            for t in range(nnear):
+                m = near[t]
+                if (on_p[m] if m < npair else on_w[m - npair]):
+                    act[nact] = m
+                    nact += 1
             applied_round = 0
-            for sweep in range(max_sweeps):
+            for sweep_ in range(max_sweeps):
                 applied = 0
-                for m in range(npair):
-                    if on_p[m] and _impulse(pi[m], pj[m], ps[m, 0], ps[m, 1], ps[m, 2], gp_c[m], gp_n[m], x, v, wb, Rm,
-                                            im, iinv, k_rest, vtol) > 0.0:
-                        applied += 1
-                for m in range(nwall):
-                    if on_w[m] and _impulse(wi[m], -1, 0.0, 0.0, 0.0, gw_c[m], gw_n[m], x, v, wb, Rm, im, iinv, k_rest,
-                                            vtol) > 0.0:
-                        applied += 1
+                for t in range(nact):
+                    m = act[t]
+                    if m < npair:
+                        i = pi[m]
+                        j = pj[m]
+                        if _impulse(i, j, ps[m, 0], ps[m, 1], ps[m, 2], gp_c[m], gp_n[m], x, v, wb, Rm, im, iinv, k_rest,
+                                    vtol) > 0.0:
+                            applied += 1
+                            ver[i] += 1
+                            ver[j] += 1
+                    else:
+                        m -= npair
+                        i = wi[m]
+                        if _impulse(i, -1, 0.0, 0.0, 0.0, gw_c[m], gw_n[m], x, v, wb, Rm, im, iinv, k_rest, vtol) > 0.0:
+                            applied += 1
+                            ver[i] += 1
                 sweeps += 1
                 applied_round += applied
                 if applied == 0:
@@ -605,6 +839,10 @@ def _resolve_kernel(
         stats[_S_UNRES] += unres
 
     # ---- overlap projection (positions only, split by inverse mass)
+    ws = new_scratch()
+    nrm = np.empty(3)
+    c = np.empty(3)
+    x2 = np.empty(3)
     disp = np.zeros(n)
     d1 = np.zeros(npair)
     d2 = np.zeros(npair)
@@ -621,7 +859,8 @@ def _resolve_kernel(
             if disp[i] != d1[m] or disp[j] != d2[m]:
                 for k in range(3):
                     x2[k] = x[j, k] + ps[m, k]
-                cg[m] = body_contact(kind[i], h[i], x[i], Rm[i], kind[j], h[j], x2, Rm[j], margin, manifold_tol, nrm, c)
+                cg[m] = body_contact_ws(kind[i], h[i], x[i], Rm[i], kind[j], h[j], x2, Rm[j], margin, manifold_tol, nrm,
+                                        c, ws, True)
                 for k in range(3):
                     cn[m, k] = nrm[k]
                     cc[m, k] = c[k]
@@ -681,7 +920,8 @@ def _resolve_kernel(
         if bound < 0.0:
             for k in range(3):
                 x2[k] = x[j, k] + ps[m, k]
-            bound = body_contact(kind[i], h[i], x[i], Rm[i], kind[j], h[j], x2, Rm[j], margin, manifold_tol, nrm, c)
+            bound = body_contact_ws(kind[i], h[i], x[i], Rm[i], kind[j], h[j], x2, Rm[j], margin, manifold_tol, nrm, c,
+                                    ws, True)
         ova = max(ova, -bound)
     for m in range(nwall):
         i = wi[m]

@@ -62,7 +62,7 @@ import numpy as np
 from numba import njit
 
 from .rigid import quat_to_matrix
-from .shapes import CUBE, SPHERE, bounding_radius, support_body
+from .shapes import CUBE, CYLINDER, SPHERE, bounding_radius
 
 GJK_MAX_ITER = 128
 EPA_MAX_VERTS = 128
@@ -98,40 +98,74 @@ def _cross_into(a, b, out):
 
 
 @njit(cache=True)
-def _support_lab(kind, h, x, R, core, d, out, tb, ts):
-    # core: the body is replaced by its centre (a sphere treated as point + margin)
+def _support3(kind, h, x, R, core, d0, d1, d2):
+    """Lab-frame support point of a body along the lab direction (d0, d1, d2), as a tuple.
+    ``shapes.support_body`` written out on scalars (same operations, so the same bits; a test
+    pins the two together): the GJK loop calls it twice per iteration and must not allocate.
+    ``core``: the body is replaced by its centre (a sphere treated as point + margin)."""
     if core:
-        out[0] = x[0]
-        out[1] = x[1]
-        out[2] = x[2]
-        return
-    for k in range(3):
-        tb[k] = R[0, k] * d[0] + R[1, k] * d[1] + R[2, k] * d[2]
-    support_body(kind, h, tb, ts)
-    for k in range(3):
-        out[k] = x[k] + R[k, 0] * ts[0] + R[k, 1] * ts[1] + R[k, 2] * ts[2]
+        return x[0], x[1], x[2]
+    b0 = R[0, 0] * d0 + R[1, 0] * d1 + R[2, 0] * d2
+    b1 = R[0, 1] * d0 + R[1, 1] * d1 + R[2, 1] * d2
+    b2 = R[0, 2] * d0 + R[1, 2] * d1 + R[2, 2] * d2
+    if kind == SPHERE:
+        nb = math.sqrt(b0 * b0 + b1 * b1 + b2 * b2)
+        if nb > 0.0:
+            s0 = h[0] * b0 / nb
+            s1 = h[0] * b1 / nb
+            s2 = h[0] * b2 / nb
+        else:
+            s0 = h[0]
+            s1 = 0.0
+            s2 = 0.0
+    elif kind == CYLINDER:
+        r = math.sqrt(b0 * b0 + b1 * b1)
+        if r > 0.0:
+            s0 = h[0] * b0 / r
+            s1 = h[0] * b1 / r
+        else:
+            s0 = h[0]
+            s1 = 0.0
+        s2 = h[2] * (1.0 if b2 >= 0.0 else -1.0)
+    else:
+        s0 = h[0] * (1.0 if b0 >= 0.0 else -1.0)
+        s1 = h[1] * (1.0 if b1 >= 0.0 else -1.0)
+        s2 = h[2] * (1.0 if b2 >= 0.0 else -1.0)
+    return (x[0] + R[0, 0] * s0 + R[0, 1] * s1 + R[0, 2] * s2,
+            x[1] + R[1, 0] * s0 + R[1, 1] * s1 + R[1, 2] * s2,
+            x[2] + R[2, 0] * s0 + R[2, 1] * s1 + R[2, 2] * s2)
+
+
+@njit(cache=True)
+def _support_lab(kind, h, x, R, core, d, out):
+    out[0], out[1], out[2] = _support3(kind, h, x, R, core, d[0], d[1], d[2])
 
 
 # ------------------------------------------------------------------------------------------------
-# GJK: closest point of a simplex to the origin (Ericson 5.1), reducing the simplex in place
+# GJK: closest point of a simplex to the origin (Ericson 5.1), reducing the simplex in place.
+# Nothing here allocates: these run ~20 times per pair and per narrow-phase call.
 
 
 @njit(cache=True)
-def _keep(W, WA, WB, lam, idx, m):
-    # compact rows idx[0..m-1] to the front (idx ascending, so no row is overwritten too early)
-    for r in range(m):
-        s = idx[r]
-        if s != r:
-            for k in range(3):
-                W[r, k] = W[s, k]
-                WA[r, k] = WA[s, k]
-                WB[r, k] = WB[s, k]
-            lam[r] = lam[s]
+def _keep(W, WA, WB, lam, mask):
+    """Compact the rows whose bit is set in ``mask`` to the front, in ascending order (so no row
+    is overwritten before it is moved). Returns their number."""
+    r = 0
+    for s in range(4):
+        if mask & (1 << s):
+            if s != r:
+                for k in range(3):
+                    W[r, k] = W[s, k]
+                    WA[r, k] = WA[s, k]
+                    WB[r, k] = WB[s, k]
+                lam[r] = lam[s]
+            r += 1
+    return r
 
 
 @njit(cache=True)
-def _closest_triangle(a, b, c, res):
-    """Barycentric weights (res[0..2]) of the point of triangle abc closest to the origin."""
+def _closest_triangle(a, b, c):
+    """Barycentric weights (tuple of 3) of the point of triangle abc closest to the origin."""
     ab0 = b[0] - a[0]
     ab1 = b[1] - a[1]
     ab2 = b[2] - a[2]
@@ -141,37 +175,34 @@ def _closest_triangle(a, b, c, res):
     d1 = -(ab0 * a[0] + ab1 * a[1] + ab2 * a[2])
     d2 = -(ac0 * a[0] + ac1 * a[1] + ac2 * a[2])
     if d1 <= 0.0 and d2 <= 0.0:
-        res[0], res[1], res[2] = 1.0, 0.0, 0.0
-        return
+        return 1.0, 0.0, 0.0
     d3 = -(ab0 * b[0] + ab1 * b[1] + ab2 * b[2])
     d4 = -(ac0 * b[0] + ac1 * b[1] + ac2 * b[2])
     if d3 >= 0.0 and d4 <= d3:
-        res[0], res[1], res[2] = 0.0, 1.0, 0.0
-        return
+        return 0.0, 1.0, 0.0
     vc = d1 * d4 - d3 * d2
     if vc <= 0.0 and d1 >= 0.0 and d3 <= 0.0:
         t = d1 / (d1 - d3)
-        res[0], res[1], res[2] = 1.0 - t, t, 0.0
-        return
+        return 1.0 - t, t, 0.0
     d5 = -(ab0 * c[0] + ab1 * c[1] + ab2 * c[2])
     d6 = -(ac0 * c[0] + ac1 * c[1] + ac2 * c[2])
     if d6 >= 0.0 and d5 <= d6:
-        res[0], res[1], res[2] = 0.0, 0.0, 1.0
-        return
+        return 0.0, 0.0, 1.0
     vb = d5 * d2 - d1 * d6
     if vb <= 0.0 and d2 >= 0.0 and d6 <= 0.0:
         t = d2 / (d2 - d6)
-        res[0], res[1], res[2] = 1.0 - t, 0.0, t
-        return
+        return 1.0 - t, 0.0, t
     va = d3 * d6 - d5 * d4
     if va <= 0.0 and (d4 - d3) >= 0.0 and (d5 - d6) >= 0.0:
         t = (d4 - d3) / ((d4 - d3) + (d5 - d6))
-        res[0], res[1], res[2] = 0.0, 1.0 - t, t
-        return
+        return 0.0, 1.0 - t, t
     den = va + vb + vc
     if not den > 0.0:
         # degenerate (collinear) triangle: best of the three edges
         best = 1e300
+        r0 = 1.0
+        r1 = 0.0
+        r2 = 0.0
         for e in range(3):
             p = a if e == 0 else (b if e == 1 else c)
             qv = b if e == 0 else (c if e == 1 else a)
@@ -189,21 +220,17 @@ def _closest_triangle(a, b, c, res):
             dd = px * px + py * py + pz * pz
             if dd < best:
                 best = dd
-                r0 = 0.0
-                r1 = 0.0
-                r2 = 0.0
                 if e == 0:
-                    r0, r1 = 1.0 - t, t
+                    r0, r1, r2 = 1.0 - t, t, 0.0
                 elif e == 1:
-                    r1, r2 = 1.0 - t, t
+                    r0, r1, r2 = 0.0, 1.0 - t, t
                 else:
-                    r2, r0 = 1.0 - t, t
-                res[0], res[1], res[2] = r0, r1, r2
-        return
+                    r0, r1, r2 = t, 0.0, 1.0 - t
+        return r0, r1, r2
     inv = 1.0 / den
     v = vb * inv
     w = vc * inv
-    res[0], res[1], res[2] = 1.0 - v - w, v, w
+    return 1.0 - v - w, v, w
 
 
 @njit(cache=True)
@@ -211,7 +238,6 @@ def _simplex_closest(W, WA, WB, n, lam, v):
     """Closest point ``v`` of the simplex W[0..n-1] to the origin; reduces the simplex to the
     vertices with non-zero weight (stored first, weights in ``lam``). Returns the new size, or 4
     if the origin is inside the tetrahedron."""
-    idx = np.empty(4, dtype=np.int64)
     if n == 1:
         lam[0] = 1.0
         v[0], v[1], v[2] = W[0, 0], W[0, 1], W[0, 2]
@@ -229,9 +255,8 @@ def _simplex_closest(W, WA, WB, n, lam, v):
             v[0], v[1], v[2] = W[0, 0], W[0, 1], W[0, 2]
             return 1
         if t >= 1.0:
-            idx[0] = 1
             lam[1] = 1.0
-            _keep(W, WA, WB, lam, idx, 1)
+            _keep(W, WA, WB, lam, 2)
             v[0], v[1], v[2] = W[0, 0], W[0, 1], W[0, 2]
             return 1
         lam[0] = 1.0 - t
@@ -239,16 +264,19 @@ def _simplex_closest(W, WA, WB, n, lam, v):
         for k in range(3):
             v[k] = W[0, k] + t * (W[1, k] - W[0, k])
         return 2
-    res = np.empty(3)
     if n == 3:
-        _closest_triangle(W[0], W[1], W[2], res)
-        m = 0
-        for r in range(3):
-            if res[r] > 0.0:
-                idx[m] = r
-                lam[r] = res[r]
-                m += 1
-        _keep(W, WA, WB, lam, idx, m)
+        r0, r1, r2 = _closest_triangle(W[0], W[1], W[2])
+        mask = 0
+        if r0 > 0.0:
+            lam[0] = r0
+            mask |= 1
+        if r1 > 0.0:
+            lam[1] = r1
+            mask |= 2
+        if r2 > 0.0:
+            lam[2] = r2
+            mask |= 4
+        m = _keep(W, WA, WB, lam, mask)
         for k in range(3):
             v[k] = 0.0
             for r in range(m):
@@ -257,49 +285,54 @@ def _simplex_closest(W, WA, WB, n, lam, v):
     # tetrahedron: test the origin against each face (opposite vertex o)
     best = 1e300
     bestf = -1
-    bres = np.zeros(3)
-    nrm = np.empty(3)
-    e1 = np.empty(3)
-    e2 = np.empty(3)
+    b0 = 0.0
+    b1 = 0.0
+    b2 = 0.0
     for f in range(4):
         i0 = (f + 1) % 4
         i1 = (f + 2) % 4
         i2 = (f + 3) % 4
-        for k in range(3):
-            e1[k] = W[i1, k] - W[i0, k]
-            e2[k] = W[i2, k] - W[i0, k]
-        _cross_into(e1, e2, nrm)
-        sp = -(nrm[0] * W[i0, 0] + nrm[1] * W[i0, 1] + nrm[2] * W[i0, 2])
-        sd = nrm[0] * (W[f, 0] - W[i0, 0]) + nrm[1] * (W[f, 1] - W[i0, 1]) + nrm[2] * (W[f, 2] - W[i0, 2])
-        outside = sp * sd < 0.0 or sd * sd <= 1e-24 * (_dot(e1, e1) * _dot(e2, e2) + 1e-300)
+        e10 = W[i1, 0] - W[i0, 0]
+        e11 = W[i1, 1] - W[i0, 1]
+        e12 = W[i1, 2] - W[i0, 2]
+        e20 = W[i2, 0] - W[i0, 0]
+        e21 = W[i2, 1] - W[i0, 1]
+        e22 = W[i2, 2] - W[i0, 2]
+        n0 = e11 * e22 - e12 * e21
+        n1 = e12 * e20 - e10 * e22
+        n2 = e10 * e21 - e11 * e20
+        sp = -(n0 * W[i0, 0] + n1 * W[i0, 1] + n2 * W[i0, 2])
+        sd = n0 * (W[f, 0] - W[i0, 0]) + n1 * (W[f, 1] - W[i0, 1]) + n2 * (W[f, 2] - W[i0, 2])
+        ee1 = e10 * e10 + e11 * e11 + e12 * e12
+        ee2 = e20 * e20 + e21 * e21 + e22 * e22
+        outside = sp * sd < 0.0 or sd * sd <= 1e-24 * (ee1 * ee2 + 1e-300)
         if not outside:
             continue
-        _closest_triangle(W[i0], W[i1], W[i2], res)
-        px = res[0] * W[i0, 0] + res[1] * W[i1, 0] + res[2] * W[i2, 0]
-        py = res[0] * W[i0, 1] + res[1] * W[i1, 1] + res[2] * W[i2, 1]
-        pz = res[0] * W[i0, 2] + res[1] * W[i1, 2] + res[2] * W[i2, 2]
+        r0, r1, r2 = _closest_triangle(W[i0], W[i1], W[i2])
+        px = r0 * W[i0, 0] + r1 * W[i1, 0] + r2 * W[i2, 0]
+        py = r0 * W[i0, 1] + r1 * W[i1, 1] + r2 * W[i2, 1]
+        pz = r0 * W[i0, 2] + r1 * W[i1, 2] + r2 * W[i2, 2]
         dd = px * px + py * py + pz * pz
         if dd < best:
             best = dd
             bestf = f
-            bres[0], bres[1], bres[2] = res[0], res[1], res[2]
+            b0, b1, b2 = r0, r1, r2
     if bestf < 0:
         return 4
-    i0 = (bestf + 1) % 4
-    i1 = (bestf + 2) % 4
-    i2 = (bestf + 3) % 4
-    # sort the kept indices ascending so that _keep never overwrites a row it still needs
-    wts = np.zeros(4)
-    wts[i0] = bres[0]
-    wts[i1] = bres[1]
-    wts[i2] = bres[2]
-    m = 0
+    # weights by row; the face's opposite row gets none
+    mask = 0
     for r in range(4):
-        if wts[r] > 0.0:
-            idx[m] = r
-            lam[r] = wts[r]
-            m += 1
-    _keep(W, WA, WB, lam, idx, m)
+        wr = 0.0
+        if r == (bestf + 1) % 4:
+            wr = b0
+        elif r == (bestf + 2) % 4:
+            wr = b1
+        elif r == (bestf + 3) % 4:
+            wr = b2
+        if wr > 0.0:
+            lam[r] = wr
+            mask |= 1 << r
+    m = _keep(W, WA, WB, lam, mask)
     for k in range(3):
         v[k] = 0.0
         for r in range(m):
@@ -312,11 +345,6 @@ def _gjk(k1, h1, x1, R1, c1, k2, h2, x2, R2, c2, scale, max_gap, W, WA, WB, lam,
     """GJK on D = A - B. Returns (status, dist, n): separated (dist, witnesses pa/pb, v = pa - pb),
     intersecting (simplex W[0..n-1] holds the origin, for EPA) or far (dist is a lower bound
     greater than max_gap)."""
-    d = np.empty(3)
-    sa = np.empty(3)
-    sb = np.empty(3)
-    tb = np.empty(3)
-    ts = np.empty(3)
     for k in range(3):
         v[k] = x1[k] - x2[k]
     if _dot(v, v) <= (1e-12 * scale) ** 2:
@@ -324,15 +352,11 @@ def _gjk(k1, h1, x1, R1, c1, k2, h2, x2, R2, c2, scale, max_gap, W, WA, WB, lam,
     n = 0
     tol = GJK_REL_TOL * scale
     for _it in range(GJK_MAX_ITER):
-        for k in range(3):
-            d[k] = -v[k]
-        _support_lab(k1, h1, x1, R1, c1, d, sa, tb, ts)
-        for k in range(3):
-            d[k] = v[k]
-        _support_lab(k2, h2, x2, R2, c2, d, sb, tb, ts)
-        w0 = sa[0] - sb[0]
-        w1 = sa[1] - sb[1]
-        w2 = sa[2] - sb[2]
+        sa0, sa1, sa2 = _support3(k1, h1, x1, R1, c1, -v[0], -v[1], -v[2])
+        sb0, sb1, sb2 = _support3(k2, h2, x2, R2, c2, v[0], v[1], v[2])
+        w0 = sa0 - sb0
+        w1 = sa1 - sb1
+        w2 = sa2 - sb2
         vw = v[0] * w0 + v[1] * w1 + v[2] * w2
         vv = _dot(v, v)
         if n > 0:
@@ -350,9 +374,8 @@ def _gjk(k1, h1, x1, R1, c1, k2, h2, x2, R2, c2, scale, max_gap, W, WA, WB, lam,
             if dup:
                 break
         W[n, 0], W[n, 1], W[n, 2] = w0, w1, w2
-        for k in range(3):
-            WA[n, k] = sa[k]
-            WB[n, k] = sb[k]
+        WA[n, 0], WA[n, 1], WA[n, 2] = sa0, sa1, sa2
+        WB[n, 0], WB[n, 1], WB[n, 2] = sb0, sb1, sb2
         n += 1
         n = _simplex_closest(W, WA, WB, n, lam, v)
         if n == 4 or _dot(v, v) <= (1e-10 * scale) ** 2:
@@ -398,18 +421,16 @@ def _blow_up(k1, h1, x1, R1, k2, h2, x2, R2, scale, V, VA, VB, n):
     d = np.empty(3)
     sa = np.empty(3)
     sb = np.empty(3)
-    tb = np.empty(3)
-    ts = np.empty(3)
     eps = 1e-9 * scale
     dirs = np.array([[1.0, 0, 0], [-1.0, 0, 0], [0, 1.0, 0], [0, -1.0, 0], [0, 0, 1.0], [0, 0, -1.0]])
     if n == 1:
         for t in range(6):
             for k in range(3):
                 d[k] = dirs[t, k]
-            _support_lab(k1, h1, x1, R1, False, d, sa, tb, ts)
+            _support_lab(k1, h1, x1, R1, False, d, sa)
             for k in range(3):
                 d[k] = -dirs[t, k]
-            _support_lab(k2, h2, x2, R2, False, d, sb, tb, ts)
+            _support_lab(k2, h2, x2, R2, False, d, sb)
             dd = 0.0
             for k in range(3):
                 dd += (sa[k] - sb[k] - V[0, k]) ** 2
@@ -448,10 +469,10 @@ def _blow_up(k1, h1, x1, R1, k2, h2, x2, R2, scale, V, VA, VB, n):
             ang = t * math.pi / 3.0
             for k in range(3):
                 d[k] = math.cos(ang) * u0[k] + math.sin(ang) * u1[k]
-            _support_lab(k1, h1, x1, R1, False, d, sa, tb, ts)
+            _support_lab(k1, h1, x1, R1, False, d, sa)
             for k in range(3):
                 d[k] = -d[k]
-            _support_lab(k2, h2, x2, R2, False, d, sb, tb, ts)
+            _support_lab(k2, h2, x2, R2, False, d, sb)
             # distance of the new point from the line of the segment
             wx = sa[0] - sb[0] - V[0, 0]
             wy = sa[1] - sb[1] - V[0, 1]
@@ -483,10 +504,10 @@ def _blow_up(k1, h1, x1, R1, k2, h2, x2, R2, scale, V, VA, VB, n):
         for sgn in (1.0, -1.0):
             for k in range(3):
                 d[k] = sgn * nn[k]
-            _support_lab(k1, h1, x1, R1, False, d, sa, tb, ts)
+            _support_lab(k1, h1, x1, R1, False, d, sa)
             for k in range(3):
                 d[k] = -d[k]
-            _support_lab(k2, h2, x2, R2, False, d, sb, tb, ts)
+            _support_lab(k2, h2, x2, R2, False, d, sb)
             off = 0.0
             for k in range(3):
                 off += (sa[k] - sb[k] - V[0, k]) * nn[k]
@@ -556,8 +577,6 @@ def _epa(k1, h1, x1, R1, k2, h2, x2, R2, scale, W, WA, WB, n, nrm, pa, pb):
     d = np.empty(3)
     sa = np.empty(3)
     sb = np.empty(3)
-    tb = np.empty(3)
-    ts = np.empty(3)
     edges = np.empty((3 * EPA_MAX_FACES, 2), dtype=np.int64)
     best = 0
     while True:
@@ -571,10 +590,10 @@ def _epa(k1, h1, x1, R1, k2, h2, x2, R2, scale, W, WA, WB, n, nrm, pa, pb):
             return -1.0
         for k in range(3):
             d[k] = FN[best, k]
-        _support_lab(k1, h1, x1, R1, False, d, sa, tb, ts)
+        _support_lab(k1, h1, x1, R1, False, d, sa)
         for k in range(3):
             d[k] = -d[k]
-        _support_lab(k2, h2, x2, R2, False, d, sb, tb, ts)
+        _support_lab(k2, h2, x2, R2, False, d, sb)
         sd = (sa[0] - sb[0]) * FN[best, 0] + (sa[1] - sb[1]) * FN[best, 1] + (sa[2] - sb[2]) * FN[best, 2]
         if sd - bd <= tol or nv >= EPA_MAX_VERTS:
             break
@@ -949,12 +968,31 @@ def _manifold_point(k1, h1, x1, R1, k2, h2, x2, R2, nrm, base, tol, out_c):
 # narrow phase, public kernel
 
 
+SCRATCH_SIZE = 52
+
+
+@njit(cache=True)
+def new_scratch():
+    """Scratch memory of ``body_contact_ws`` (GJK simplex and witness points). One per thread:
+    the narrow phase runs ~10^3 times per step and must not allocate."""
+    return np.empty(SCRATCH_SIZE)
+
+
 @njit(cache=True)
 def body_contact(k1, h1, x1, R1, k2, h2, x2, R2, max_gap, manifold_tol, nrm, c):
     """Signed gap between body 1 (kind k1, half-extents h1, centre x1, rotation matrix R1
     body->lab) and body 2; writes the unit normal from 1 to 2 into ``nrm`` and the contact point
     into ``c`` (both (3,)). If the gap exceeds ``max_gap`` the function may stop early and return
     a lower bound of the gap (> max_gap); ``nrm`` and ``c`` are then only approximate."""
+    return body_contact_ws(k1, h1, x1, R1, k2, h2, x2, R2, max_gap, manifold_tol, nrm, c, new_scratch(), True)
+
+
+@njit(cache=True)
+def body_contact_ws(k1, h1, x1, R1, k2, h2, x2, R2, max_gap, manifold_tol, nrm, c, ws, point):
+    """``body_contact`` with caller-provided scratch ``ws`` (``new_scratch()``). With
+    ``point=False`` the contact point ``c`` is not computed (it is left approximate); the gap and
+    the normal are the same bits as with ``point=True``, for callers that need only the sign of
+    the gap (the time-of-impact bisection)."""
     rb1 = bounding_radius(k1, h1)
     rb2 = bounding_radius(k2, h2)
     scale = rb1 + rb2
@@ -971,13 +1009,14 @@ def body_contact(k1, h1, x1, R1, k2, h2, x2, R2, max_gap, manifold_tol, nrm, c):
         for k in range(3):
             c[k] = x1[k] + nrm[k] * (h1[0] + 0.5 * gap)
         return gap
-    W = np.empty((4, 3))
-    WA = np.empty((4, 3))
-    WB = np.empty((4, 3))
-    lam = np.empty(4)
-    pa = np.empty(3)
-    pb = np.empty(3)
-    v = np.empty(3)
+    W = ws[0:12].reshape((4, 3))
+    WA = ws[12:24].reshape((4, 3))
+    WB = ws[24:36].reshape((4, 3))
+    lam = ws[36:40]
+    pa = ws[40:43]
+    pb = ws[43:46]
+    v = ws[46:49]
+    base = ws[49:52]
     # a sphere enters GJK as its centre; its radius is a margin subtracted afterwards
     c1 = k1 == SPHERE
     c2 = k2 == SPHERE
@@ -1031,10 +1070,9 @@ def body_contact(k1, h1, x1, R1, k2, h2, x2, R2, max_gap, manifold_tol, nrm, c):
                 pb[k] = pa[k]
             depth = 0.0
         gap = -depth
-    base = np.empty(3)
     for k in range(3):
         base[k] = 0.5 * (pa[k] + pb[k])
-    if c1 or c2:
+    if c1 or c2 or not point:
         for k in range(3):
             c[k] = base[k]
     else:
@@ -1194,10 +1232,8 @@ def plane_wall_contact(kind, h, x, R, axis, coord, side, manifold_tol, nrm, c):
         for r in range(m):
             c[k] += f[r, k]
         c[k] /= m
-    tb = np.empty(3)
-    ts = np.empty(3)
     sp = np.empty(3)
-    _support_lab(kind, h, x, R, False, nrm, sp, tb, ts)
+    _support_lab(kind, h, x, R, False, nrm, sp)
     return side * (coord - sp[axis])
 
 

@@ -299,3 +299,91 @@ def test_a_periodic_length_shorter_than_two_interaction_ranges_is_refused():
     b = Bodies.make(SPHERE, [2.0] * 3, 1.0, [[0.0, 0.0, 1.0], [0.0, 0.0, 6.0]])
     with pytest.raises(ValueError, match="periodic length"):
         resolve_collisions(b, Domain.pipe(10.0, 9.0), CollisionParams(), dt=1.0)
+
+
+def _dense_mixed_bodies(rng, radius, length, spacing=2.05):
+    """Spheres, cubes and cylinders (all fitting a 2 x 2 x 2 cell) on a grid of ``spacing`` in a
+    pipe of ``radius``: every neighbour pair is within the contact gap, as in a dense packing."""
+    g = np.arange(-radius, radius + 1e-9, spacing)
+    zs = np.arange(1.0, length - 1.0, spacing)
+    sites = np.array([[a, c, z] for a in g for c in g for z in zs if math.hypot(a, c) <= radius - 1.5])
+    n = len(sites)
+    kind = np.array([SPHERE, CUBE, CYLINDER])[np.arange(n) % 3]
+    # slightly irregular start (shifts and tilts below the 0.05 gaps), random velocities and spins
+    q = np.array([quat_from_axis_angle(rng.standard_normal(3), 0.01) for _ in range(n)])
+    x = sites + rng.uniform(-0.004, 0.004, sites.shape)
+    return Bodies.make(kind, [1.0, 1.0, 1.0], 1.0, x, q=q, v=rng.normal(0.0, 0.05, (n, 3)),
+                       wb=rng.normal(0.0, 0.05, (n, 3)))
+
+
+def test_dense_suspension_gives_bit_identical_results_on_1_and_2_threads():
+    # the narrow phase and the contact tests run in parallel; each pair writes only its own
+    # entries and the impulses are applied in a fixed order, so the thread count must not
+    # change a single bit (positions, velocities, spins, statistics) over many steps
+    import numba
+
+    if numba.config.NUMBA_NUM_THREADS < 2:
+        pytest.skip("needs NUMBA_NUM_THREADS >= 2")
+    radius, length = 6.0, 14.0
+    dom = Domain.pipe(radius, length)
+    runs = []
+    for threads in (1, 2):
+        numba.set_num_threads(threads)
+        try:
+            b = _dense_mixed_bodies(np.random.default_rng(5), radius, length)
+            stats = []
+            for _ in range(25):
+                s = resolve_collisions(b, dom, CollisionParams(), 1.0)
+                stats.append(list(s.values()))
+                drift(b, 1.0)
+        finally:
+            numba.set_num_threads(numba.config.NUMBA_NUM_THREADS)
+        runs.append((b.x.copy(), b.v.copy(), b.wb.copy(), b.q.copy(), np.array(stats, dtype=float)))
+    st = runs[0][4]
+    # dense: hundreds of candidate pairs, tens of touching pairs, hundreds of impulses in the run
+    assert b.n > 80 and st[:, 0].min() > 300 and st[:, 1].min() > 20 and st[:, 3].sum() > 500
+    for a, c in zip(runs[0], runs[1]):
+        np.testing.assert_array_equal(a, c)
+
+
+def test_narrow_phase_gives_exact_touching_contacts_and_lower_bounds_beyond_the_contact_gap():
+    # The collision step computes exact geometry only where it is used (gap <= contact_gap);
+    # wider pair gaps and wall gaps far from reach may be lower bounds. Everything else in the
+    # step relies on exactly this: equal bits at or below contact_gap, never above the true gap.
+    from lbmpipe import collisions as C
+    from lbmpipe.contact import bounding_radii
+    from lbmpipe.rigid import quat_to_matrices
+
+    radius, length = 6.0, 14.0
+    b = _dense_mixed_bodies(np.random.default_rng(8), radius, length)
+    dom = Domain.pipe(radius, length)
+    dcode, Rp, cx, cy, lo, hi, periodic = dom.arrays()
+    Rm = quat_to_matrices(b.q)
+    rb = bounding_radii(b.kind, b.h)
+    gap_c, reach, margin = 0.1, 0.3, 0.8
+    pi, pj, ps = C.candidate_pairs(b.x, rb, margin, lo, hi, periodic)
+    n, npair = b.n, len(pi)
+    cg, cn, cc = np.empty(npair), np.empty((npair, 3)), np.empty((npair, 3))
+    use, sg = np.zeros((n, 1), dtype=np.bool_), np.empty((n, 1))
+    sn, sc = np.empty((n, 1, 3)), np.empty((n, 1, 3))
+    C._narrow_phase(b.kind, b.h, b.x, Rm, rb, pi, pj, ps, gap_c, 0.1, cg, cn, cc, dcode, Rp, cx, cy, lo, hi, periodic,
+                    margin, reach, use, sg, sn, sc)
+    kinds_touching = set()
+    for m in range(npair):
+        i, j = pi[m], pj[m]
+        g, nrm, c = contact_pair(b.kind[i], b.h[i], b.x[i], b.q[i], b.kind[j], b.h[j], b.x[j] + ps[m], b.q[j])
+        if cg[m] <= gap_c:
+            assert cg[m] == g and np.array_equal(cn[m], nrm) and np.array_equal(cc[m], c)
+            kinds_touching.add((b.kind[i], b.kind[j]))
+        else:
+            assert gap_c < cg[m] <= g + 1e-12
+    assert len(kinds_touching) >= 4  # touching contacts of several shape combinations were checked
+    walls = 0
+    for i in np.nonzero(use[:, 0])[0]:
+        g, nrm, c = contact_pipe(b.kind[i], b.h[i], b.x[i], b.q[i], radius)
+        if sg[i, 0] <= reach:
+            assert sg[i, 0] == g and np.array_equal(sn[i, 0], nrm)
+            walls += 1
+        else:
+            assert reach < sg[i, 0] <= g + 1e-12
+    assert walls >= 3

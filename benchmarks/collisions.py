@@ -1,0 +1,148 @@
+"""Cost of the collision step against the fluid sweep on the paper's pipe, from a scene.
+
+The paper's pipe (50 mm x 100 mm, dx = 1 mm: 50 x 50 x 100 nodes, periodic in z), Re 9.4
+flow-rate driving (Q = 1.577e-4 m^3/s, tau 1.78), D3Q15 BGK, half-way bounce-back, parabolic
+start, with a packed suspension (``particles.packed``, packed at start-up by ``lbmpipe.packing``):
+
+  * ``cyl8x8_c50``: cylinders 8 x 8 mm at 50 % (244 particles), the issue's target case;
+  * ``cube8_c30``: cubes of 8 mm at 30 % (115 particles).
+
+Dense packings keep nearly every particle in contact, so every step has many pair and wall
+contacts and impulses. The simulation is assembled by ``lbmpipe.solver.simulation_from_scene``
+(the same effects as a real run). After ``--warmup`` steps (particles moving and colliding),
+``--repeats`` windows of ``--steps`` steps are timed with ``Simulation.timers``; the table gives
+the median per step over the windows of
+
+  * fluid sweep: the stream + collide kernel alone,
+  * particles: every ``particles:`` effect (Ladd coupling with the implicit update, flux
+    correction, motion and remap),
+  * collisions: ``CollisionEffect`` (broad phase, narrow phase, impulses, overlap projection),
+  * ratio: collisions / fluid sweep, the median of the per-window ratios (both measured in the
+    same window, so load from other processes cancels to first order).
+
+The issue's target: collisions at most 25 % of the fluid sweep for the 50 % cylinders.
+Each thread count runs in its own process (``NUMBA_NUM_THREADS``), since the sweep fixes its
+chunking when the simulation is built.
+
+Run: ``python benchmarks/collisions.py [--threads 1 2] [--steps 100] [--repeats 5] [--warmup 100]
+[--cases cyl8x8_c50 cube8_c30] [--json FILE]``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import statistics
+import subprocess
+import sys
+import time
+
+CASES = {
+    "cyl8x8_c50": {"shape": "cylinder", "diameter_mm": 8.0, "length_mm": 8.0, "concentration": 0.5, "seed": 0},
+    "cube8_c30": {"shape": "cube", "edge_mm": 8.0, "concentration": 0.3, "seed": 0},
+}
+
+
+def scene_dict(case: str) -> dict:
+    """The paper's pipe at Re 9.4 (scenes/pipe_re9.4.yaml) with the case's packed group."""
+    return {
+        "name": f"bench_collisions_{case}",
+        "domain": {"kind": "pipe", "diameter_mm": 50.0, "length_mm": 100.0},
+        "fluid": {"density_kg_m3": 1000.0, "reynolds": 9.4},
+        "driving": {"kind": "flow_rate", "flow_rate_m3_s": 1.577e-4},
+        "initial": {"velocity": "parabolic"},
+        "numerics": {"dx_mm": 1.0, "dt_s": 1.0e-3, "lattice": "D3Q15", "collision": "bgk", "wall": "bounce_back"},
+        "run": {"duration_s": 1.0, "spinup_s": 0.0, "sample_interval_s": 0.05},
+        "particles": {"packed": [dict(CASES[case], max_seconds=300.0)]},
+    }
+
+
+def measure(case: str, steps: int, repeats: int, warmup: int) -> dict:
+    import numba
+
+    from lbmpipe.collisions import CollisionEffect
+    from lbmpipe.effects import StreamCollide
+    from lbmpipe.scene import Scene
+    from lbmpipe.solver import simulation_from_scene
+    from lbmpipe.units import derive
+
+    scene = Scene.model_validate(scene_dict(case))
+    params = derive(scene)
+    t0 = time.perf_counter()
+    sim = simulation_from_scene(scene, params)
+    setup = time.perf_counter() - t0
+    coll = next(e for e in sim.effects if isinstance(e, CollisionEffect))
+    sweep = next(e for e in sim.effects if isinstance(e, StreamCollide))
+    sim.step(warmup)
+    windows = []
+    for _ in range(repeats):
+        sim.timers = {k: 0.0 for k in sim.timers}
+        before = dict(coll.totals)
+        t0 = time.perf_counter()
+        sim.step(steps)
+        wall = (time.perf_counter() - t0) / steps
+        per = {k: v / steps for k, v in sim.timers.items()}
+        w = {
+            "step": wall,
+            "sweep": per[sweep.name],
+            "particles": sum(v for k, v in per.items() if k.startswith("particles:")),
+            "collisions": per[coll.name],
+        }
+        w["ratio"] = w["collisions"] / w["sweep"]
+        for k in ("impulses", "pair_contacts", "wall_contacts", "unresolved"):
+            w[k] = (coll.totals[k] - before[k]) / steps
+        windows.append(w)
+    med = {k: statistics.median(w[k] for w in windows) for k in windows[0]}
+    bodies = sim.particles.bodies
+    return {
+        "case": case, "threads": numba.get_num_threads(), "particles": int(bodies.n),
+        "concentration": sim.packing.get("concentration_achieved"), "setup_seconds": setup,
+        "steps": steps, "repeats": repeats, "warmup": warmup, "median": med, "windows": windows,
+        "max_overlap_after_lu": coll.totals["max_overlap_after_lu"],
+        "max_overlap_before_lu": coll.totals["max_overlap_before_lu"],
+    }
+
+
+def _worker(args) -> int:
+    rows = [measure(c, args.steps, args.repeats, args.warmup) for c in args.cases]
+    print("JSON " + json.dumps(rows))
+    return 0
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--threads", type=int, nargs="+", default=[1, 2])
+    ap.add_argument("--steps", type=int, default=100)
+    ap.add_argument("--repeats", type=int, default=5)
+    ap.add_argument("--warmup", type=int, default=100)
+    ap.add_argument("--cases", nargs="+", default=list(CASES), choices=list(CASES))
+    ap.add_argument("--json", type=str, default=None)
+    ap.add_argument("--worker", action="store_true", help=argparse.SUPPRESS)
+    args = ap.parse_args(argv)
+    if args.worker:
+        return _worker(args)
+    rows = []
+    for nt in args.threads:
+        env = dict(os.environ, NUMBA_NUM_THREADS=str(nt))
+        cmd = [sys.executable, os.path.abspath(__file__), "--worker", "--steps", str(args.steps), "--repeats",
+               str(args.repeats), "--warmup", str(args.warmup), "--cases", *args.cases]
+        out = subprocess.run(cmd, env=env, check=True, stdout=subprocess.PIPE, text=True).stdout
+        rows += json.loads(next(line for line in out.splitlines() if line.startswith("JSON "))[5:])
+    print(f"Paper pipe 50 x 50 x 100 (dx 1 mm), Re 9.4 flow-rate, D3Q15 BGK; median of {args.repeats} windows of "
+          f"{args.steps} steps after {args.warmup}")
+    print(f"{'case':<11} {'N':>4} {'thr':>3} {'sweep ms':>9} {'particles ms':>13} {'collisions ms':>14} {'coll/sweep':>11} "
+          f"{'impulses':>9} {'pairs':>6} {'walls':>6} {'max ov':>7}")
+    for r in rows:
+        m = r["median"]
+        print(f"{r['case']:<11} {r['particles']:>4} {r['threads']:>3} {1e3 * m['sweep']:>9.3f} {1e3 * m['particles']:>13.3f} "
+              f"{1e3 * m['collisions']:>14.3f} {m['ratio']:>11.3f} {m['impulses']:>9.1f} {m['pair_contacts']:>6.1f} "
+              f"{m['wall_contacts']:>6.1f} {r['max_overlap_after_lu']:>7.4f}")
+    if args.json:
+        with open(args.json, "w") as fh:
+            json.dump(rows, fh, indent=2)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
