@@ -42,7 +42,7 @@ class Grid:
     kind: str  # "pipe" | "box"
     lattice: Lattice
     shape: tuple[int, int, int]  # array extents in nodes, ghost layers included
-    alloc_z: int  # allocated z extent (>= shape[2]; padded against cache-set conflicts)
+    alloc_z: int  # allocated z extent (>= shape[2] + 2: z-halo of the kernel, padding against cache-set conflicts)
     periodic: tuple[bool, bool, bool]
     ghost: tuple[int, int, int]  # ghost layers on each side of each axis (0 or 1)
     solid: np.ndarray  # (nx, ny, nz) bool, static walls
@@ -98,9 +98,12 @@ class Grid:
 
 
 def _alloc_z(nz: int) -> int:
-    # Power-of-two extents map the q planes of f onto the same cache sets; a few extra
-    # elements per z-row break the alignment (measured ~10 % on a 64^3 box).
-    return nz + 4 if nz % 16 == 0 else nz
+    # At least two spare slots per z-row: the fluid kernel keeps a one-node z-halo of a periodic
+    # column there (slot nz, and the last slot before the next row), so that its pull along z
+    # never splits a row (see kernels.py). Power-of-two extents map the q planes of f onto the
+    # same cache sets; a few more elements per z-row break the alignment (measured ~10 % on a
+    # 64^3 box).
+    return nz + 4 if nz % 16 == 0 else nz + 2
 
 
 def pipe_grid(lattice: Lattice, n_diameter: int, n_length: int) -> Grid:

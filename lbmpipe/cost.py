@@ -1,9 +1,14 @@
 """Run-time estimate of a scene: fluid node updates divided by the solver's throughput.
 
-``DEFAULT_MLUPS`` (million lattice-node updates per second) is a placeholder measured for the
-whole solver step on ``REFERENCE_THREADS`` threads; the benchmark recalibrates it. Throughput is
-assumed to scale linearly with the thread count, which over-estimates it once memory bandwidth
-saturates: treat the estimate as a lower bound on wall time for many threads.
+``DEFAULT_MLUPS`` (million lattice-node updates per second) is the whole fluid-only solver step
+on ``REFERENCE_THREADS`` threads, calibrated from ``benchmarks/fluid.py`` (row "lbmpipe BGK +
+bounce-back wall", the paper's pipe 50 x 50 x 100, float64, 2 threads: median 154 MLUPS) on
+2026-11-22, Intel Xeon (Sapphire Rapids, KVM guest, 2 cores, AVX-512), numba 0.68, kernel
+generator version 5, on a machine shared with other jobs; rounded down to 150. Scenes with a
+body force and the flux sum, interpolated walls or particles do more work per step and run
+slower. Throughput is assumed to scale linearly with the thread count, which over-estimates it
+once memory bandwidth saturates: treat the estimate as a lower bound on wall time for many
+threads.
 """
 
 from __future__ import annotations
@@ -12,7 +17,7 @@ import os
 
 import numpy as np
 
-DEFAULT_MLUPS = 20.0
+DEFAULT_MLUPS = 150.0
 REFERENCE_THREADS = 2
 
 
