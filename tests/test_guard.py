@@ -125,10 +125,12 @@ def test_overlap_beyond_the_collision_bound_is_caught_and_within_it_passes():
     sim, _ = _sim(particles=PARTICLES)
     ce = sim.guard.collide
     assert ce is not None
-    ce.totals["max_overlap_after_lu"] = ce.params.overlap_tol  # exactly the bound: fine
+    bound = ce.params.overlap_tol * sim.guard.limits.overlap_factor
+    assert bound == pytest.approx(0.1)  # the bound the collision tests hold between calls
+    ce.totals["max_overlap_after_lu"] = bound  # exactly the bound: fine
     sim.guard.check(sim)
-    ce.totals["max_overlap_after_lu"] = 3 * ce.params.overlap_tol
-    with pytest.raises(Unstable, match="overlap 0.03 lattice spacings .* above the bound 0.01"):
+    ce.totals["max_overlap_after_lu"] = 3 * bound
+    with pytest.raises(Unstable, match="overlap 0.3 lattice spacings .* above the bound 0.1"):
         sim.guard.check(sim)
 
 
