@@ -948,7 +948,8 @@ def _check_periodic(domain_arrays, rb_max: float, margin: float) -> None:
             )
 
 
-def resolve_collisions(bodies: Bodies, domain: Domain, params: CollisionParams, dt: float, pairs: bool = True) -> dict:
+def resolve_collisions(bodies: Bodies, domain: Domain, params: CollisionParams, dt: float, pairs: bool = True,
+                       step: int = -1) -> dict:
     """Detect all particle-particle and particle-wall contacts, apply the impulses of
     Eqs. (16)-(21) (in place on ``bodies.v`` and ``bodies.wb``) and project overlaps away (in place
     on ``bodies.x``). See the module docstring for the model and the overlap bound.
@@ -959,6 +960,8 @@ def resolve_collisions(bodies: Bodies, domain: Domain, params: CollisionParams, 
     was exhausted), ``sweeps``, ``projection_iters``, ``unresolved`` (contacts still approaching
     after max_sweeps), ``max_displacement`` (largest projection shift of a body), ``passes``.
     ``pairs=False`` skips the broad phase and all particle-particle contacts (walls only).
+    Raises ``guard.Unstable`` (naming ``step``) when a body moves so fast that its reach per step
+    spans the periodic length: the sign of a run that has blown up between guard checks.
     """
     n = bodies.n
     stats = np.zeros(_NSTATS)
@@ -970,8 +973,21 @@ def resolve_collisions(bodies: Bodies, domain: Domain, params: CollisionParams, 
     moving = ~bodies.fixed
     speed = np.linalg.norm(bodies.v, axis=1) + np.linalg.norm(bodies.wb, axis=1) * rb
     vmax = float(np.max(speed[moving])) if np.any(moving) else 0.0
-    margin = params.contact_gap + (2.0 * vmax * dt if params.speculative else 0.0) + params.skin
-    _check_periodic(dom, float(np.max(rb)), margin)
+    static_margin = params.contact_gap + params.skin
+    margin = static_margin + (2.0 * vmax * dt if params.speculative else 0.0)
+    _check_periodic(dom, float(np.max(rb)), static_margin)
+    try:
+        _check_periodic(dom, float(np.max(rb)), margin)
+    except ValueError:
+        # The geometry fits; only the speculative reach of a body moving many lattice spacings per
+        # step does not. No physical suspension does that: it is a blown-up run, so report it as one
+        # (the guard's status 'unstable') rather than as a bad domain.
+        from .guard import Unstable
+        k = int(np.argmax(np.where(moving, speed, -1.0)))
+        raise Unstable(f"particle speed {speed[k]:.3g} lattice units per step (translation plus rotation at the "
+                       f"bounding radius) reaches past the periodic images", f"particle {k}", step,
+                       "the fluid-particle coupling went unstable (high Mach number or a thin fluid film)",
+                       "reduce numerics.dt_s, use numerics.collision: trt, or lower the concentration") from None
     passes = 0
     for p in range(4):
         maxdisp, _ = _resolve_kernel(
@@ -1023,7 +1039,8 @@ class CollisionEffect(Effect):
         self.last: dict = {}
 
     def __call__(self, sim) -> None:
-        st = resolve_collisions(self.system.bodies, self.domain, self.params, 1.0, pairs=self.pairs)
+        st = resolve_collisions(self.system.bodies, self.domain, self.params, 1.0, pairs=self.pairs,
+                                step=sim.step_count)
         t = self.totals
         t["calls"] += 1
         for k in ("impulses", "pair_contacts", "wall_contacts", "unresolved"):

@@ -301,6 +301,17 @@ def test_a_periodic_length_shorter_than_two_interaction_ranges_is_refused():
         resolve_collisions(b, Domain.pipe(10.0, 9.0), CollisionParams(), dt=1.0)
 
 
+def test_a_body_moving_past_the_periodic_images_is_reported_unstable_not_as_a_bad_domain():
+    # The geometry fits the period (spheres of 2 in a 40-long pipe); a speed of 30 lattice
+    # spacings per step only arises in a blown-up run, and must read as one.
+    from lbmpipe.guard import Unstable
+    b = Bodies.make(SPHERE, [2.0] * 3, 1.0, [[0.0, 0.0, 5.0], [0.0, 0.0, 20.0]])
+    resolve_collisions(b, Domain.pipe(10.0, 40.0), CollisionParams(), dt=1.0)  # at rest: accepted
+    b.v[1, 2] = 30.0
+    with pytest.raises(Unstable, match="unstable at step 7: particle speed 30"):
+        resolve_collisions(b, Domain.pipe(10.0, 40.0), CollisionParams(), dt=1.0, step=7)
+
+
 def _dense_mixed_bodies(rng, radius, length, spacing=2.05):
     """Spheres, cubes and cylinders (all fitting a 2 x 2 x 2 cell) on a grid of ``spacing`` in a
     pipe of ``radius``: every neighbour pair is within the contact gap, as in a dense packing."""

@@ -30,6 +30,8 @@ rule scene:
         "results/{fidelity}/cases/{case}/scene.yaml",
     log:
         "results/{fidelity}/logs/{case}.scene.log",
+    params:
+        settings=_scene_settings,
     run:
         write_case_scene(config, wildcards.fidelity, wildcards.case, output[0], packing_csv=input.get("packing"))
 

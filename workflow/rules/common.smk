@@ -1,4 +1,6 @@
 # Functions the rules use (Snakemake's lint wants them apart from the rules).
+import json
+
 from lbmpipe import study as lbm_study
 
 
@@ -9,6 +11,14 @@ def _packing_input(wildcards):
 
 def _packing_info(wildcards):
     return f"results/packings/{packing_id(config['cases'][wildcards.case])}.json"
+
+
+def _scene_settings(wildcards):
+    # The config entries a case's scene is made from, as a param: editing them in config.yaml
+    # (a level's dx, dt or duration, a case's particles) reruns that case under Snakemake's params
+    # rerun trigger, and only that case.
+    fid = {k: v for k, v in config["fidelities"][wildcards.fidelity].items() if k != "threads"}
+    return json.dumps({"fidelity": fid, "case": config["cases"][wildcards.case]}, sort_keys=True)
 
 
 def _threads(wildcards):
