@@ -193,6 +193,27 @@ def _cmd_stability(args) -> int:
     return EXIT_OK if (df["status"] != "violated").all() else EXIT_FAILED
 
 
+def _cmd_document(args) -> int:
+    # Rebuilds only the document from the results already on disk: after a code change moves a
+    # linked definition, this refreshes the links without rerunning a single case.
+    import yaml
+
+    from .literate import build_document, check_links
+
+    root = Path(args.root).resolve()
+    fid_dir = root / "results" / args.fidelity
+    if not fid_dir.is_dir():
+        print(f"no results at {fid_dir}: run `snakemake -c2 --config fidelity={args.fidelity}` first", file=sys.stderr)
+        return EXIT_FAILED
+    config = yaml.safe_load((root / "config.yaml").read_text())
+    out = build_document(root, fid_dir, args.fidelity, config, root / "paper" / f"reproduction_{args.fidelity}.md")
+    stale = check_links(out, root)
+    for problem in stale:
+        print(f"stale link: {problem}", file=sys.stderr)
+    print(f"wrote {out.relative_to(root)} and {out.with_suffix('.html').relative_to(root)}")
+    return EXIT_FAILED if stale else EXIT_OK
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="lbmpipe", description=__doc__.splitlines()[0])
     sub = parser.add_subparsers(dest="command", required=True)
@@ -222,6 +243,11 @@ def build_parser() -> argparse.ArgumentParser:
     p_st.add_argument("--threads", type=int, default=1, help="numba threads (default 1)")
     p_st.add_argument("--quiet", action="store_true")
     p_st.set_defaults(func=_cmd_stability)
+    p_doc = sub.add_parser("document", help="rebuild paper/reproduction_<level>.md/.html from results/<level>/ "
+                                            "(no case is rerun)")
+    p_doc.add_argument("--fidelity", default="paper", help="results level to read (default paper)")
+    p_doc.add_argument("--root", default=".", help="repository root (default: current directory)")
+    p_doc.set_defaults(func=_cmd_document)
     return parser
 
 

@@ -182,3 +182,23 @@ def test_check_links_reports_links_whose_definition_moved_or_no_longer_cites_the
     (repo / "lbmpipe" / "observables.py").unlink()
     stale = literate.check_links(out, repo)
     assert any(s.startswith("lbmpipe/observables.py#L") and s.endswith("file missing") for s in stale)
+
+
+@pytest.mark.parametrize("level", ["paper"])
+def test_committed_reproduction_links_still_point_at_the_code_that_implements_each_equation(level):
+    # The committed document links equations to lines of the package: a change that moves or
+    # rewrites one of those definitions must come with the rebuilt document.
+    md = REPO / "paper" / f"reproduction_{level}.md"
+    if not md.exists():
+        pytest.skip(f"{md.name} is not committed")
+    stale = literate.check_links(md, REPO)
+    assert stale == [], (f"{len(stale)} stale links in {md.name}; rebuild it with "
+                         f"`lbmpipe document --fidelity {level}`: {stale[:5]}")
+
+
+def test_document_command_without_results_names_the_pipeline_command_and_fails(tmp_path, capsys):
+    from lbmpipe.cli import EXIT_FAILED, run_cli
+    (tmp_path / "config.yaml").write_text("fidelities: {}\ncases: {}\n")
+    assert run_cli(["document", "--fidelity", "nosuch", "--root", str(tmp_path)]) == EXIT_FAILED
+    assert "snakemake -c2 --config fidelity=nosuch" in capsys.readouterr().err
+    assert not (tmp_path / "paper").exists()  # nothing written
