@@ -159,6 +159,9 @@ def _cmd_run(args) -> int:
     except CheckpointError as exc:
         print(str(exc), file=sys.stderr)
         return EXIT_BAD_SCENE
+    except SceneError as exc:  # found only when the scene is built (a packing file that cannot be read)
+        print(f"{args.scene}:\n{exc}", file=sys.stderr)
+        return EXIT_BAD_SCENE
     except KeyboardInterrupt:
         print("interrupted", file=sys.stderr)
         return EXIT_INTERRUPTED

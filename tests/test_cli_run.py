@@ -87,3 +87,16 @@ def test_ctrl_c_leaves_a_consistent_summary_marked_interrupted(tmp_path):
     assert summary["status"] == "interrupted"
     assert 0 < summary["steps"] < summary["steps_requested"]
     assert (out / "flow_rate.csv").exists()
+
+
+def test_a_packing_file_that_cannot_be_read_is_a_scene_error_naming_the_field_not_a_traceback(tmp_path):
+    path = _coarse_pipe(tmp_path, duration=0.1)
+    scene = yaml.safe_load(path.read_text())
+    scene["particles"] = {"packed": [{"shape": "cube", "edge_mm": 8.0, "concentration": 0.1,
+                                      "file": str(tmp_path / "missing.csv")}]}
+    path.write_text(yaml.safe_dump(scene))
+    res = _run("run", path, "--out", tmp_path / "out", "--quiet")
+    assert res.returncode == 2
+    assert "particles.packed[0].file" in res.stderr and "Fix:" in res.stderr
+    assert "Traceback" not in res.stderr
+    assert not (tmp_path / "out" / "summary.json").exists()
