@@ -7,7 +7,7 @@ from snakemake.utils import min_version, validate
 
 from pathlib import Path
 
-from lbmpipe.cases import estimate_minutes, packing_id, write_case_scene
+from lbmpipe.cases import case_scene, estimate_minutes, packing_id, write_case_scene
 from lbmpipe.statistics import write_case_outputs
 
 min_version("8.0")

@@ -154,3 +154,13 @@ def test_summary_records_packing_and_collisions(tmp_path):
     assert summary["collisions"]["pairs"] is True
     on_disk = json.loads((tmp_path / "summary.json").read_text())
     assert on_disk["collisions"]["calls"] == summary["steps"]
+
+
+def test_a_case_named_in_duration_s_by_case_averages_longer_and_only_that_case():
+    from lbmpipe.cases import case_scene
+    fid = {"dx_mm": 2.5, "run": {"duration_s": 0.3, "spinup_s": 0.1, "sample_interval_s": 0.025},
+           "duration_s_by_case": {"cube24_c30_re26": 3.0}}
+    case = {"reynolds": 26, "particles": {"shape": "cube", "edge_mm": 24, "concentration": 0.3}}
+    assert case_scene("cube24_c30_re26", case, "smoke", fid)["run"]["duration_s"] == 3.0
+    assert case_scene("cube24_c30_re9.4", dict(case, reynolds=9.4), "smoke", fid)["run"]["duration_s"] == 0.3
+    assert case_scene("cube24_c30_re26", case, "smoke", fid)["run"]["spinup_s"] == 0.1

@@ -14,11 +14,12 @@ def _packing_info(wildcards):
 
 
 def _scene_settings(wildcards):
-    # The config entries a case's scene is made from, as a param: editing them in config.yaml
-    # (a level's dx, dt or duration, a case's particles) reruns that case under Snakemake's params
-    # rerun trigger, and only that case.
-    fid = {k: v for k, v in config["fidelities"][wildcards.fidelity].items() if k != "threads"}
-    return json.dumps({"fidelity": fid, "case": config["cases"][wildcards.case]}, sort_keys=True)
+    # The case's scene as a param: an edit of config.yaml that changes it (a level's dx, dt or
+    # duration, a case's particles) reruns that case under Snakemake's params rerun trigger, and
+    # only the cases it changes.
+    fid = config["fidelities"][wildcards.fidelity]
+    scene = case_scene(wildcards.case, config["cases"][wildcards.case], wildcards.fidelity, fid)
+    return json.dumps(scene, sort_keys=True)
 
 
 def _threads(wildcards):
