@@ -66,8 +66,25 @@ def _table(rows: list[tuple[str, str]]) -> str:
     return "\n".join(f"  {k:<{width}} = {v}" for k, v in rows)
 
 
-def format_report(scene: Scene, params: LatticeParams, source: str = "") -> str:
-    """Human-readable resolved scene and derived lattice parameters."""
+#: where ``lbmpipe check`` looks for a calibrated cost model, finest level first
+COST_MODEL_PATHS = tuple(f"results/{lvl}/study/cost_model.json" for lvl in ("paper", "quick", "smoke"))
+
+
+def find_cost_model(explicit: str | None = None) -> tuple[dict | None, str | None]:
+    """The accuracy-cost study's fitted cost model (``lbmpipe.study.fit_cost_model``): ``explicit``
+    if given, else the first of ``COST_MODEL_PATHS`` under the current directory."""
+    import json
+
+    for cand in ([explicit] if explicit else list(COST_MODEL_PATHS)):
+        path = Path(cand)
+        if path.is_file():
+            return json.loads(path.read_text()), str(path)
+    return None, None
+
+
+def format_report(scene: Scene, params: LatticeParams, source: str = "", cost_model: tuple | None = None) -> str:
+    """Human-readable resolved scene and derived lattice parameters; with ``cost_model`` (the
+    model, its path) also the run time that the study's calibrated model predicts."""
     rows: list[tuple[str, str]] = []
     _flatten("", _relevant(scene), rows)
     u = params.units
@@ -96,6 +113,13 @@ def format_report(scene: Scene, params: LatticeParams, source: str = "") -> str:
         ("steps", f"{params.n_steps:,}  (spin-up {params.spinup_steps:,}, sample every {params.sample_every:,})"),
         ("estimated run time", f"{_duration(params.estimated_seconds)}  (lbmpipe.cost, {params.fluid_nodes * params.n_steps:.3g} node updates)"),
     ]
+    if cost_model is not None and cost_model[0] is not None:
+        from .study import predict_seconds
+
+        model, path = cost_model
+        derived.append(("predicted run time", f"{_duration(predict_seconds(scene, params, model))}  (cost model of "
+                        f"{model.get('n_runs', '?')} runs, rms error {100 * model.get('rel_rms_error', float('nan')):.0f} %: "
+                        f"{path})"))
     text = [f"Scene {scene.name}" + (f"  ({source})" if source else ""), _table(rows), "", "Derived lattice parameters", _table(derived)]
     if params.warnings:
         text += ["", "Warnings"] + [f"  - {w}" for w in params.warnings]
@@ -118,7 +142,7 @@ def _cmd_check(args) -> int:
             continue
         if i:
             print()
-        print(format_report(scene, params, path))
+        print(format_report(scene, params, path, cost_model=find_cost_model(args.cost_model)))
     return status
 
 
@@ -222,6 +246,9 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", required=True)
     p_check = sub.add_parser("check", help="validate scene files and print the derived lattice parameters")
     p_check.add_argument("scenes", nargs="+", metavar="SCENE", help="YAML scene file(s); see docs/scene.md")
+    p_check.add_argument("--cost-model", default=None, metavar="JSON",
+                         help="cost model of the accuracy-cost study (default: the first of "
+                              + ", ".join(COST_MODEL_PATHS) + " that exists)")
     p_check.set_defaults(func=_cmd_check)
     p_run = sub.add_parser("run", help="run a scene")
     p_run.add_argument("scene", metavar="SCENE", help="YAML scene file")

@@ -107,3 +107,23 @@ def test_run_of_a_bad_scene_exits_2_without_creating_the_output(tmp_path, fake_s
 
 def test_unknown_command_is_an_argument_error():
     assert _exit_code(["frobnicate"]) == 2
+
+
+def test_check_predicts_run_time_from_the_calibrated_cost_model(tmp_path, capsys):
+    # A model of 1 s fixed plus 1e-7 s per node update must predict 1 + 1e-7 * nodes * steps.
+    import json
+
+    from lbmpipe.scene import load_scene
+    from lbmpipe.units import derive
+    model = {"intercept_s": 1.0, "s_per_node_update": 1e-7, "s_per_link_update": 0.0, "s_per_particle_step": 0.0,
+             "n_runs": 7, "rel_rms_error": 0.1, "threads": 1}
+    path = tmp_path / "cost_model.json"
+    path.write_text(json.dumps(model))
+    scene_path = ROOT / "scenes" / "pipe_re9.4.yaml"
+    params = derive(load_scene(scene_path))
+    assert cli.run_cli(["check", str(scene_path), "--cost-model", str(path)]) == 0
+    out = capsys.readouterr().out
+    line = next(ln for ln in out.splitlines() if "predicted run time" in ln)
+    expected = 1.0 + 1e-7 * params.fluid_nodes * params.n_steps
+    shown = cli._duration(expected)
+    assert shown in line and "cost model of 7 runs" in line
