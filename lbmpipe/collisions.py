@@ -1028,12 +1028,14 @@ class CollisionEffect(Effect):
 
     phase = "post"
 
-    def __init__(self, system, domain: Domain, params: CollisionParams):
+    def __init__(self, system, domain: Domain, params: CollisionParams, pairs: bool = True):
         self.system = system
         self.domain = domain
         self.params = params
-        self.pairs = system.n > 1
-        self.name = "collisions: impulses + overlap removal" if self.pairs else "collisions: walls only (one particle)"
+        self.pairs = system.n > 1 and pairs
+        self.name = ("collisions: impulses + overlap removal" if self.pairs else
+                     "collisions: walls only (pairs switched off)" if system.n > 1 else
+                     "collisions: walls only (one particle)")
         self.totals = {"calls": 0, "impulses": 0, "pair_contacts": 0, "wall_contacts": 0, "unresolved": 0,
                        "max_overlap_before_lu": 0.0, "max_overlap_after_lu": 0.0}
         self.last: dict = {}

@@ -157,7 +157,7 @@ def collision_effect(scene, params, system):
     dom = Domain.pipe(radius, hi[2] - lo[2], z0=lo[2]) if radius > 0 else Domain.box(lo, hi, periodic)
     c = scene.particles.collisions
     return CollisionEffect(system, dom, CollisionParams(restitution=c.restitution, contact_gap=c.contact_gap_dx,
-                                                        overlap_tol=c.overlap_tol_dx))
+                                                        overlap_tol=c.overlap_tol_dx), pairs=c.pairs)
 
 
 def simulation_from_scene(scene, params, guard: bool = True) -> Simulation:

@@ -58,9 +58,9 @@ def test_re26_dt_factor_halves_the_time_step_and_keeps_the_reynolds_number():
     assert p26.mach_max == pytest.approx(0.28, abs=0.01)  # NOTES.md: Re 26 at dt 0.5 ms
 
 
-def test_nocoll_case_switches_collisions_off_and_keeps_the_packing(tmp_path):
+def test_nocoll_case_switches_pair_collisions_off_keeps_the_wall_and_the_packing(tmp_path):
     data = cases.case_scene("x", CONFIG["cases"]["cube8_c30_re9.4_nocoll"], "tiny", SMOKE, "p.csv")
-    assert data["particles"]["collisions"]["enabled"] is False
+    assert data["particles"]["collisions"] == {"pairs": False}
     assert data["particles"]["packed"][0] == {"shape": "cube", "edge_mm": 8, "concentration": 0.3, "seed": 1,
                                               "file": "p.csv"}
 
@@ -119,6 +119,24 @@ def test_one_particle_meets_walls_only_and_switched_off_collisions_assemble_no_e
     off["particles"]["collisions"] = {"enabled": False}
     sim = simulation_from_scene(Scene.model_validate(off), derive(Scene.model_validate(off)))
     assert sim.effect(CollisionEffect) is None
+
+
+
+def test_pairs_off_keeps_particles_inside_the_pipe_while_they_pass_through_each_other():
+    # Two spheres on a collision course, one heading into the wall: without pair contacts they
+    # overlap freely, but the wall contact still turns the second one back.
+    data = small_pipe({"bodies": [
+        {"shape": "sphere", "diameter_mm": 10, "position_mm": [6, 0, 50], "velocity_m_s": [0.1, 0, 0]},
+        {"shape": "sphere", "diameter_mm": 10, "position_mm": [17, 0, 50], "velocity_m_s": [0.1, 0, 0]}]})
+    data["particles"]["collisions"] = {"pairs": False}
+    scene = Scene.model_validate(data)
+    sim = simulation_from_scene(scene, derive(scene))
+    ce = sim.effect(CollisionEffect)
+    assert ce is not None and ce.pairs is False and "pairs switched off" in ce.name
+    sim.step(100)
+    assert ce.totals["pair_contacts"] == 0 and ce.totals["wall_contacts"] > 0
+    assert sim.guard is not None
+    sim.guard.check(sim)  # every particle inside the pipe
 
 
 def test_dense_run_holds_flow_rate_mean_density_and_the_overlap_bound(tmp_path):
