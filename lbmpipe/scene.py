@@ -747,7 +747,8 @@ def describe_fields() -> str:
     """Markdown reference of every scene field (the content of docs/scene.md)."""
     sections = [("(top level)", Scene)] + [(key, _model_at((key,))) for key in Scene.model_fields if _model_at((key,))]
     sections += [("domain.walls", Walls), ("domain.moving_walls[i]", MovingWall),
-                 ("particles.bodies[i]", ParticleBody), ("particles.random[i]", RandomParticles)]
+                 ("particles.bodies[i]", ParticleBody), ("particles.random[i]", RandomParticles),
+                 ("particles.packed[i]", PackedParticles), ("particles.collisions", Collisions)]
     lines = [_DOC_HEAD]
     for where, model in sections:
         doc = " ".join((model.__doc__ or "").split())
