@@ -55,10 +55,10 @@ def case_scene(name: str, case: dict, fidelity_name: str, fidelity: dict, packin
         "driving": {"kind": "flow_rate", "flow_rate_m3_s": FLOWS[re]},
         "initial": {"velocity": "parabolic"},
         "numerics": fidelity_numerics(fidelity, re),
-        "run": {k: run[k] for k in ("duration_s", "spinup_s", "sample_interval_s")},
+        # Few large particles give few independent samples per second: such cases average longer.
+        "run": {"duration_s": float(fidelity.get("duration_s_by_case", {}).get(name, run["duration_s"])),
+                "spinup_s": run["spinup_s"], "sample_interval_s": run["sample_interval_s"]},
     }
-    # Few large particles give few independent samples per second: such cases average longer.
-    scene["run"]["duration_s"] = float(fidelity.get("duration_s_by_case", {}).get(name, run["duration_s"]))
     if "mach_limit" in fidelity:
         scene["numerics"]["mach_limit"] = fidelity["mach_limit"]
     part = case.get("particles")

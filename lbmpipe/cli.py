@@ -225,7 +225,7 @@ def _cmd_document(args) -> int:
     # linked definition, this refreshes the links without rerunning a single case.
     import yaml
 
-    from .literate import build_document, check_links
+    from .literate import build_checked_document
 
     root = Path(args.root).resolve()
     fid_dir = root / "results" / args.fidelity
@@ -233,8 +233,7 @@ def _cmd_document(args) -> int:
         print(f"no results at {fid_dir}: run `snakemake -c2 --config fidelity={args.fidelity}` first", file=sys.stderr)
         return EXIT_FAILED
     config = yaml.safe_load((root / "config.yaml").read_text())
-    out = build_document(root, fid_dir, args.fidelity, config, root / "paper" / f"reproduction_{args.fidelity}.md")
-    stale = check_links(out, root)
+    out, stale = build_checked_document(root, args.fidelity, config)
     for problem in stale:
         print(f"stale link: {problem}", file=sys.stderr)
     print(f"wrote {out.relative_to(root)} and {out.with_suffix('.html').relative_to(root)}")

@@ -938,14 +938,14 @@ def _resolve_kernel(
     return maxdisp, margin
 
 
-def _check_periodic(domain_arrays, rb_max: float, margin: float) -> None:
+def _too_short_axis(domain_arrays, rb_max: float, margin: float) -> int:
+    """The first periodic axis shorter than two interaction ranges ``2 rb_max + margin`` (a pair
+    would interact with two images along it), or -1."""
     _, _, _, _, lo, hi, periodic = domain_arrays
     for a in range(3):
         if periodic[a] and (hi[a] - lo[a]) < 2.0 * (2.0 * rb_max + margin):
-            raise ValueError(
-                f"periodic length {hi[a] - lo[a]:g} along axis {'xyz'[a]} is shorter than two interaction "
-                f"ranges (2 x {2.0 * rb_max + margin:g}): a pair would interact with two images"
-            )
+            return a
+    return -1
 
 
 def resolve_collisions(bodies: Bodies, domain: Domain, params: CollisionParams, dt: float, pairs: bool = True,
@@ -975,10 +975,14 @@ def resolve_collisions(bodies: Bodies, domain: Domain, params: CollisionParams, 
     vmax = float(np.max(speed[moving])) if np.any(moving) else 0.0
     static_margin = params.contact_gap + params.skin
     margin = static_margin + (2.0 * vmax * dt if params.speculative else 0.0)
-    _check_periodic(dom, float(np.max(rb)), static_margin)
-    try:
-        _check_periodic(dom, float(np.max(rb)), margin)
-    except ValueError:
+    rb_max = float(np.max(rb))
+    a = _too_short_axis(dom, rb_max, static_margin)
+    if a >= 0:
+        raise ValueError(
+            f"periodic length {hi[a] - lo[a]:g} along axis {'xyz'[a]} is shorter than two interaction "
+            f"ranges (2 x {2.0 * rb_max + static_margin:g}): a pair would interact with two images"
+        )
+    if margin > static_margin and _too_short_axis(dom, rb_max, margin) >= 0:
         # The geometry fits; only the speculative reach of a body moving many lattice spacings per
         # step does not. No physical suspension does that: it is a blown-up run, so report it as one
         # (the guard's status 'unstable') rather than as a bad domain.
@@ -987,7 +991,7 @@ def resolve_collisions(bodies: Bodies, domain: Domain, params: CollisionParams, 
         raise Unstable(f"particle speed {speed[k]:.3g} lattice units per step (translation plus rotation at the "
                        f"bounding radius) reaches past the periodic images", f"particle {k}", step,
                        "the fluid-particle coupling went unstable (high Mach number or a thin fluid film)",
-                       "reduce numerics.dt_s, use numerics.collision: trt, or lower the concentration") from None
+                       "reduce numerics.dt_s, use numerics.collision: trt, or lower the concentration")
     passes = 0
     for p in range(4):
         maxdisp, _ = _resolve_kernel(

@@ -545,6 +545,17 @@ def build_document(repo_root: Path, fid_dir: Path, fidelity: str, config: dict, 
     return out_md
 
 
+def build_checked_document(repo_root: Path, fidelity: str, config: dict,
+                           out_md: Path | None = None) -> tuple[Path, list[str]]:
+    """``build_document`` for ``results/<fidelity>`` under ``repo_root`` into ``out_md`` (default
+    ``paper/reproduction_<fidelity>.md``), then ``check_links`` on it: the document and its stale
+    links (empty when all are fresh). The pipeline's ``paper`` rule and ``lbmpipe document``."""
+    repo_root = Path(repo_root)
+    out_md = Path(out_md) if out_md is not None else repo_root / "paper" / f"reproduction_{fidelity}.md"
+    out = build_document(repo_root, repo_root / "results" / fidelity, fidelity, config, out_md)
+    return out, check_links(out, repo_root)
+
+
 # --------------------------------------------------------------------------------------------------
 # minimal Markdown -> HTML (the subset the template emits)
 

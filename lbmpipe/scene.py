@@ -253,7 +253,7 @@ class Collisions(_Model):
     spacings because they are numerical tolerances of the discrete step."""
 
     enabled: bool = Field(True, description="Resolve collisions. `false` lets particles pass through each other and the wall "
-                          "(NOTES.md claim 14 compares runs with and without).")
+                          "(for a run without interaction that keeps the particles in the pipe, use `pairs: false`).")
     pairs: bool = Field(True, description="Particle-particle collisions. `false` keeps only the contacts with the walls: "
                         "particles pass through each other but stay in the pipe (NOTES.md claim 14's runs without "
                         "interaction).")

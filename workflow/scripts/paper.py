@@ -1,11 +1,10 @@
 import sys
 from pathlib import Path
 
-from lbmpipe.literate import build_document, check_links
+from lbmpipe.literate import build_checked_document
 
 sys.stderr = open(snakemake.log[0], "w")
-fid = snakemake.wildcards.fidelity
-out = build_document(Path.cwd(), Path("results") / fid, fid, snakemake.config, Path(snakemake.output.md))
-stale = check_links(out, Path.cwd())
+out, stale = build_checked_document(Path.cwd(), snakemake.wildcards.fidelity, snakemake.config,
+                                    Path(snakemake.output.md))
 if stale:
     sys.exit("stale code links in the document:\n" + "\n".join(stale))
