@@ -159,6 +159,14 @@ class Numerics(_Model):
     min_diameter_nodes: int = Field(
         8, ge=1, description="Pipe: reject a diameter of fewer nodes; box: reject a walled extent of fewer nodes."
     )
+    density_floor: Optional[float] = Field(
+        0.5, gt=0, lt=1,
+        description="Scenes with free particles: the lowest fluid density, as a fraction of the reference density, a "
+        "node may reach. A film thinner than one spacing between a particle and the wall or another particle is "
+        "drained by the moving bounce-back of Eq. (8) faster than its few fluid links refill it; below the floor "
+        "mass is added at zero momentum and the summary reports how much (`density_floor`). null: no floor (dense "
+        "packings may then diverge).",
+    )
 
 
 class Run(_Model):

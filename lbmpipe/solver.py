@@ -37,7 +37,7 @@ class Simulation:
 
     def __init__(self, grid: bnd.Grid, *, collision: str = "bgk", omega: float, omega_minus: float | None = None,
                  precision: str = "float64", force=(0.0, 0.0, 0.0), flux: bool = False,
-                 extra_effects: list[fx.Effect] | None = None):
+                 extra_effects: list[fx.Effect] | None = None, density_floor: float | None = None):
         self.grid = grid
         self.lattice = grid.lattice
         self.omega = float(omega)
@@ -51,10 +51,11 @@ class Simulation:
         self.last_flux = 0.0
         self.step_count = 0
         forcing = bool(np.any(self.force != 0.0)) or flux
-        spec = KernelSpec(self.lattice.name, collision, forcing, flux, precision)
+        floor = bool(density_floor)
+        spec = KernelSpec(self.lattice.name, collision, forcing, flux, precision, floor)
         self.effects: list[fx.Effect] = []
         self.effects += [e for e in (extra_effects or []) if e.phase == "pre"]
-        self.effects.append(fx.StreamCollide(spec))
+        self.effects.append(fx.StreamCollide(spec, density_floor if floor else 0.0))
         self.effects += [e for e in (extra_effects or []) if e.phase == "post"]
         self.timers = {e.name: 0.0 for e in self.effects}
         # A few chunks per thread balance the columns across cores without per-column overhead.
@@ -191,8 +192,10 @@ def simulation_from_scene(scene, params, guard: bool = True) -> Simulation:
     if collide is not None:
         extra.append(collide)
     extra += after
+    # the density floor (effects.StreamCollide) only where free particles can squeeze films
+    floor = num.density_floor if system is not None and len(system.free_ids) else None
     sim = Simulation(grid, collision=num.collision, omega=params.omega, omega_minus=params.omega_minus,
-                     precision=num.precision, force=force, flux=flux, extra_effects=extra)
+                     precision=num.precision, force=force, flux=flux, extra_effects=extra, density_floor=floor)
     sim.particles = system
     sim.particle_static = static
     sim.packing = getattr(system, "packing_info", {}) if system is not None else {}
@@ -400,6 +403,13 @@ def run_scene(scene, params, out_dir: Path, progress: bool = True, max_steps: in
             "collisions": sim.effect(CollisionEffect) is not None,
             **sim.packing,
         }
+        sc = sim.effect(fx.StreamCollide)
+        if sc.spec.floor:
+            mass_fluid = max(mass0, 1e-300)
+            summary["density_floor"] = {
+                "rho_min": sc.rho_min, "mass_added_rel": float(sc.tally[0]) / mass_fluid,
+                "node_updates": int(sc.tally[1]),
+                "node_updates_per_step": float(sc.tally[1]) / max(sim.step_count, 1)}
         ce = sim.effect(CollisionEffect)
         summary["collisions"] = ce.record() if ce is not None else {
             "enabled": False, "reason": "switched off by the scene" if not scene.particles.collisions.enabled

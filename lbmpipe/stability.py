@@ -21,7 +21,9 @@ Invariants, measured every ``probe_every`` steps by ``run_case`` (bounds in ``BO
 * no NaN/Inf, lattice speed and density within the guard's limits (``lbmpipe.guard``; the guard
   stops the run at the first violation and its message goes into the table);
 * relative drift of the mean fluid density (particle-free: of the total fluid mass), probed right
-  after the mass correction of particle runs; the mass that correction added is reported too;
+  after the mass correction of particle runs; the mass that correction added is reported too, and
+  the mass the density floor added to drained films (``effects.StreamCollide``) with the number of
+  node updates it acted on;
 * bounded kinetic energy: fluid + particles, relative to the Hagen-Poiseuille flow at the target
   flow rate over the whole pipe (``ke_ratio_max``);
 * every particle inside: the smallest signed gap between a particle and the pipe wall
@@ -308,6 +310,7 @@ def run_case(case: StabilityCase, dx_mm: float, steps: int, work_dir: Path | Non
 
     from .collisions import CollisionEffect
     from .coupling import MassCorrection
+    from .effects import StreamCollide
     from .guard import Unstable
     from .scene import Scene, SceneError
     from .solver import simulation_from_scene
@@ -338,6 +341,7 @@ def run_case(case: StabilityCase, dx_mm: float, steps: int, work_dir: Path | Non
         guard = sim.guard
         ce = sim.effect(CollisionEffect)
         mc = sim.effect(MassCorrection)
+        sc = sim.effect(StreamCollide)  # its density-floor tally (zero without free particles)
         fluid0 = sim.fluid_mask()
         mass0 = sim.mass()
         rho0 = mass0 / max(int(fluid0.sum()), 1)
@@ -366,6 +370,7 @@ def run_case(case: StabilityCase, dx_mm: float, steps: int, work_dir: Path | Non
                    max_u_over_cs=stats["u_max"] * math.sqrt(3.0), rho_min=stats["rho_min"], rho_max=stats["rho_max"],
                    mass_drift_rel=stats["drift"],
                    mass_corrected_rel=(mc.added / mass0) if mc is not None else 0.0,
+                   floor_mass_rel=float(sc.tally[0]) / mass0, floor_node_updates=int(sc.tally[1]),
                    ke_ratio_max=stats["ke"],
                    max_overlap_before_lu=ce.totals["max_overlap_before_lu"] if ce is not None else float("nan"),
                    max_overlap_after_lu=ce.totals["max_overlap_after_lu"] if ce is not None else float("nan"),
@@ -409,8 +414,8 @@ def _finish(row: dict) -> dict:
 
 COLUMNS = ["case", "description", "settings", "status", "failed_step", "steps_done", "steps_requested", "dx_mm", "dt_s",
            "tau", "mach", "reynolds", "particles", "max_u_over_cs", "rho_min", "rho_max", "mass_drift_rel",
-           "mass_corrected_rel", "ke_ratio_max", "max_overlap_before_lu", "max_overlap_after_lu", "overlap_bound_lu",
-           "impulses", "min_wall_clearance_lu", "violations", "message", "wall_seconds"]
+           "mass_corrected_rel", "floor_mass_rel", "floor_node_updates", "ke_ratio_max", "max_overlap_before_lu",
+           "max_overlap_after_lu", "overlap_bound_lu", "impulses", "min_wall_clearance_lu", "violations", "message", "wall_seconds"]
 
 
 def run_suite(settings: dict, out_csv: Path | None = None, cases: list[StabilityCase] | None = None,

@@ -160,6 +160,7 @@ def test_scene_without_force_or_walls_assembles_only_the_bare_sweep():
     # The generated sweep holds no arithmetic for absent effects: no force, no TRT odd rate, no flux.
     bare = render(KernelSpec("D3Q15", "bgk", forcing=False, flux=False))
     assert "Fx" not in bare and "cf_p" not in bare and "om_m *" not in bare and "_block_flux" not in bare
+    assert "d_rho" not in bare and "d_rho" in render(KernelSpec("D3Q15", "bgk", floor=True))
     assert "cf_p" in render(KernelSpec("D3Q15", "bgk", forcing=True))
     assert "om_m *" in render(KernelSpec("D3Q15", "trt"))
     assert "_block_flux" in render(KernelSpec("D3Q15", "bgk", forcing=True, flux=True))

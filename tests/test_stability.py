@@ -40,7 +40,7 @@ def test_hard_case_runs_with_the_guard_and_meets_the_invariants(name, packings):
         return
     assert row["steps_done"] == row["steps_requested"]
     assert row["max_u_over_cs"] < 0.5 * math.sqrt(3.0)  # the guard's speed limit
-    assert 0.5 <= row["rho_min"] <= row["rho_max"] <= 1.5
+    assert 0.5 - 1e-9 <= row["rho_min"] <= row["rho_max"] <= 1.5  # 0.5: the density floor of particle scenes
     bound = st.BOUNDS["mass_drift_rel_particles" if row["particles"] else "mass_drift_rel"]
     assert row["mass_drift_rel"] <= bound
     assert row["ke_ratio_max"] <= st.BOUNDS["ke_ratio_max"]
