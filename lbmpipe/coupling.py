@@ -163,7 +163,10 @@ import math
 
 import numba
 import numpy as np
-from numba import njit, prange
+from llvmlite import ir
+from numba import njit, prange, types
+from numba.core import cgutils
+from numba.extending import intrinsic
 
 from . import effects as fx
 from .rigid import Bodies, drift_arrays, omega_lab_arrays, quat_to_matrix
@@ -172,6 +175,32 @@ from .shapes import CYLINDER, SPHERE, bounding_radius, volume
 WALL = -2
 FLUID = -1
 _EPS_DIR = 1e-12  # below this a direction component counts as zero (line parallel to a face)
+#: links ahead whose population the link passes prefetch (measured: the gather of f* 25-35 %
+#: faster at 16; 8 and 64 gain less)
+_PREFETCH = 16
+
+
+@intrinsic
+def _prefetch(typingctx, arr, i, j, write):
+    """Hint the cache to fetch ``arr[i, j]`` (for writing if the literal ``write`` is 1); no effect
+    on results. The link passes are bound by the latency of scattered accesses to ``f``, and a
+    hint issued a few links ahead keeps more of them in flight than the out-of-order window."""
+    rw = int(getattr(write, "literal_value", 0))
+    sig = types.void(arr, i, j, write)
+
+    def codegen(context, builder, signature, args):
+        aty = signature.args[0]
+        ary = context.make_array(aty)(context, builder, args[0])
+        idx = [context.cast(builder, args[q], signature.args[q], types.intp) for q in (1, 2)]
+        ptr = cgutils.get_item_pointer(context, builder, aty, ary, idx, wraparound=False)
+        i8p = ir.IntType(8).as_pointer()
+        i32 = ir.IntType(32)
+        fn = cgutils.get_or_insert_function(builder.module, ir.FunctionType(ir.VoidType(), [i8p, i32, i32, i32]),
+                                            "llvm.prefetch.p0")
+        builder.call(fn, [builder.bitcast(ptr, i8p), ir.Constant(i32, rw), ir.Constant(i32, 3), ir.Constant(i32, 1)])
+        return context.get_dummy_value()
+
+    return sig, codegen
 
 
 # ----------------------------------------------------------------------------------------------
@@ -529,6 +558,8 @@ def couple_free(f2, owner, chg, ids, x, mass, inertia, q, v, wb, fext, imp, om, 
             # The scattered reads of f* first, in a loop without branches: their cache misses
             # (f is out of cache after the sweep) overlap instead of waiting one by one.
             for pos in range(b0, end):
+                if pos + _PREFETCH < end:
+                    _prefetch(f2, i, LN[pos + _PREFETCH, 0], 0)
                 LF[pos - off0] = f2[i, LN[pos, 0]]
             rxs = 0.0
             rys = 0.0
@@ -681,7 +712,10 @@ def couple_free(f2, owner, chg, ids, x, mass, inertia, q, v, wb, fext, imp, om, 
             cz = c6 * (ex * oy - ey * ox)
             c6eu = c6 * (ex * ux + ey * uy + ez * uz) + (O0 - 0.5 * ex) * cx + (O1 - 0.5 * ey) * cy + (O2 - 0.5 * ez) * cz
             b0 = lbase[k, i]
-            for pos in range(b0, b0 + lcnt[k, i]):
+            end = b0 + lcnt[k, i]
+            for pos in range(b0, end):
+                if pos + _PREFETCH < end:
+                    _prefetch(f2, oi, LN[pos + _PREFETCH, 1], 1)
                 f2[oi, LN[pos, 1]] = LF[pos - off0] - c6eu - LC[pos, 0] * cx - LC[pos, 1] * cy - LC[pos, 2] * cz
 
 
