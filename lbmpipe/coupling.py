@@ -150,11 +150,11 @@ Per step: one pass per particle over its links (``prange`` over particles: a sca
 ``f*_i(x)`` and a scattered write of the ghost slot per link), the 6x6 solve, the drift, the runs
 (one ray per column), the run differences, and the remap, serial over the owner changes (their
 order fixes the order of the link lists, so results do not depend on the thread count).
-There is no Python loop over particles or links. The paper's 115 cubes of 8 mm have about 200,000
-links, about one per fluid node. The link passes are bound by the latency of those scattered
-accesses (two cache lines of ``f`` per link, out of cache after the sweep), so the coupling costs
-about as much as the streaming fluid sweep (measured: 0.8-1.3x on 1 thread), the remap about a
-quarter of it; ``benchmarks/particles.py`` measures the split.
+There is no Python loop over particles or links. The paper's 115 cubes of 8 mm have about 190,000
+links (110,000 distinct cache lines of ``f`` read, as many written). The link passes are bound by
+the latency of those scattered accesses (out of cache after the sweep; prefetched 16 links ahead),
+so the coupling costs 1.3x the streaming fluid sweep on 1 thread and the remap 0.6x (measured,
+2026-12); ``benchmarks/particles.py`` measures the split.
 """
 
 from __future__ import annotations
