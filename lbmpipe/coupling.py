@@ -31,14 +31,16 @@ Links, kept up to date
 ----------------------
 A boundary link joins a fluid node ``x`` to a particle node ``s = x + e_i``; the set of links is a
 function of the owner map alone, ``{(x, s, i): owner[s] >= 0, owner[x] = -1}``. Each particle keeps
-its links in one list per direction (fluid node, particle node, link midpoint ``x + e_i/2`` in the
-particle's unwrapped frame). Owners change only in ``_set_owner``, which appends the links an owner
+its links in one list per direction, a 16-byte record per link (fluid node, particle node, and the
+particle node's lattice coordinates unwrapped in the particle's frame, which give the link midpoint
+``x + e_i/2`` exactly). Owners change only in ``_set_owners``, which appends the links an owner
 change creates (a node joining a particle: links from its fluid neighbours; a node becoming fluid:
-links into its particle neighbours). Links an owner change ends are deleted lazily: each step's
-first pass over a list checks ``owner[s] == k`` and ``owner[x] == -1`` and swap-removes the dead
-entries. So the live entries always equal the definition and nothing searches for links; a move
-costs about a thousand owner changes per step for the paper's 115 cubes. Fixed and free particles
-share the lists.
+links into its particle neighbours) and marks the node as changed. Links an owner change ends are
+deleted lazily: each step's first pass over a list swap-removes the entries with ``owner[s] != k``
+or ``owner[x] != -1``, testing only links with a node marked since the previous pass (no other
+link can have died); the marks are cleared after the passes. So the live entries always equal the
+definition and nothing searches for links; a move costs about a thousand owner changes per step
+for the paper's 115 cubes. Fixed and free particles share the lists.
 
 Coupling, Eqs. (8)-(12)
 -----------------------
@@ -148,11 +150,11 @@ Per step: one pass per particle over its links (``prange`` over particles: a sca
 ``f*_i(x)`` and a scattered write of the ghost slot per link), the 6x6 solve, the drift, the runs
 (one ray per column), the run differences, and the remap, serial over the owner changes (their
 order fixes the order of the link lists, so results do not depend on the thread count).
-There is no Python loop over particles or links. The paper's 115 cubes of 8 mm have about 200,000
-links, about one per fluid node. The link passes are bound by the latency of those scattered
-accesses (two cache lines of ``f`` per link, out of cache after the sweep), so the coupling costs
-about as much as the streaming fluid sweep (measured: 0.8-1.3x on 1 thread), the remap about a
-quarter of it; ``benchmarks/particles.py`` measures the split.
+There is no Python loop over particles or links. The paper's 115 cubes of 8 mm have about 190,000
+links (110,000 distinct cache lines of ``f`` read, as many written). The link passes are bound by
+the latency of those scattered accesses (out of cache after the sweep; prefetched 16 links ahead),
+so the coupling costs 1.3x the streaming fluid sweep on 1 thread and the remap 0.6x (measured,
+2026-12); ``benchmarks/particles.py`` measures the split.
 """
 
 from __future__ import annotations
@@ -161,7 +163,10 @@ import math
 
 import numba
 import numpy as np
-from numba import njit, prange
+from llvmlite import ir
+from numba import njit, prange, types
+from numba.core import cgutils
+from numba.extending import intrinsic
 
 from . import effects as fx
 from .rigid import Bodies, drift_arrays, omega_lab_arrays, quat_to_matrix
@@ -170,6 +175,32 @@ from .shapes import CYLINDER, SPHERE, bounding_radius, volume
 WALL = -2
 FLUID = -1
 _EPS_DIR = 1e-12  # below this a direction component counts as zero (line parallel to a face)
+#: links ahead whose population the link passes prefetch (measured: the gather of f* 25-35 %
+#: faster at 16; 8 and 64 gain less)
+_PREFETCH = 16
+
+
+@intrinsic
+def _prefetch(typingctx, arr, i, j, write):
+    """Hint the cache to fetch ``arr[i, j]`` (for writing if the literal ``write`` is 1); no effect
+    on results. The link passes are bound by the latency of scattered accesses to ``f``, and a
+    hint issued a few links ahead keeps more of them in flight than the out-of-order window."""
+    rw = int(getattr(write, "literal_value", 0))
+    sig = types.void(arr, i, j, write)
+
+    def codegen(context, builder, signature, args):
+        aty = signature.args[0]
+        ary = context.make_array(aty)(context, builder, args[0])
+        idx = [context.cast(builder, args[q], signature.args[q], types.intp) for q in (1, 2)]
+        ptr = cgutils.get_item_pointer(context, builder, aty, ary, idx, wraparound=False)
+        i8p = ir.IntType(8).as_pointer()
+        i32 = ir.IntType(32)
+        fn = cgutils.get_or_insert_function(builder.module, ir.FunctionType(ir.VoidType(), [i8p, i32, i32, i32]),
+                                            "llvm.prefetch.p0")
+        builder.call(fn, [builder.bitcast(ptr, i8p), ir.Constant(i32, rw), ir.Constant(i32, 3), ir.Constant(i32, 1)])
+        return context.get_dummy_value()
+
+    return sig, codegen
 
 
 # ----------------------------------------------------------------------------------------------
@@ -314,11 +345,23 @@ def _candidates(s1, s2, w1, w2):
 # Link lists: per particle and direction, appended on owner changes, compacted by the passes
 #
 # G = (dims, az, origin, periodic, xmap, ymap, zmap, e): the grid
-# L = (lbase, lcap, lcnt, LX, LS, LM, lerr, nown): the lists; entry ``lbase[p, i] + j`` for
-#     ``j < lcnt[p, i]`` holds fluid node LX, particle node LS and midpoint LM[:, .] of a link of
-#     particle p in direction i; an entry is live while owner[LS] == p and owner[LX] == FLUID.
+# L = (lbase, lcap, lcnt, LN, LC, lerr, nown, chg, chg_list, nchg): the lists; entry
+#     ``pos = lbase[p, i] + j`` for ``j < lcnt[p, i]`` is a link of particle p in direction i from
+#     fluid node ``LN[pos, 0]`` into particle node ``LN[pos, 1]`` (int32), whose lattice
+#     coordinates, unwrapped in the particle's frame, are ``c = LC[pos, :3]`` (int16; the link
+#     midpoint is ``origin + c - e_i/2``, exact in floating point). An entry is live while the
+#     particle node belongs to p and the fluid node is FLUID. Records of 8 + 8 bytes in two
+#     arrays: the link passes are bound by fetching the lists after the sweep evicted them, so
+#     their size and the number of streams are their cost (measured: int64 nodes and float64
+#     midpoints in five arrays took 3x longer to read). The node indices are stored, not
+#     recomputed from the coordinates: the gather of ``f*`` overlaps its cache misses only while
+#     the loop that issues them stays a few instructions per link (measured: 3.5x slower with the
+#     indices computed in the loop).
 #     ``lerr[0]`` counts links dropped for lack of room (never expected); ``nown[p]`` is the number
-#     of nodes particle p owns.
+#     of nodes particle p owns. ``chg[node]`` marks the nodes whose owner changed since the last
+#     link passes (the first ``len(chg_list)`` of them listed in ``chg_list``, ``nchg[0]`` in
+#     all): only a link with a marked node can be dead, so the passes read the owner map (a large
+#     array, scattered reads) for those links alone.
 # The helpers are compiled without reference counting (``_nrt=False``): they allocate nothing and
 # are called per node, where the atomic reference counts of their array arguments would dominate.
 
@@ -337,73 +380,95 @@ def _shifted(a, b, zi, dx, dy, dz, G):
 @njit(cache=True, _nrt=False)
 def _compact(p, i, owner, L):
     # drop the dead entries of list (p, i)
-    lbase, lcap, lcnt, LX, LS, LM, lerr, nown = L
+    lbase, lcap, lcnt, LN, LC, lerr, nown, chg, chg_list, nchg = L
     b0 = lbase[p, i]
     wpos = b0
     for pos in range(b0, b0 + lcnt[p, i]):
-        if owner[LS[pos]] == p and owner[LX[pos]] == FLUID:
-            LX[wpos] = LX[pos]
-            LS[wpos] = LS[pos]
+        if owner[LN[pos, 1]] == p and owner[LN[pos, 0]] == FLUID:
+            for d in range(2):
+                LN[wpos, d] = LN[pos, d]
             for d in range(3):
-                LM[d, wpos] = LM[d, pos]
+                LC[wpos, d] = LC[pos, d]
             wpos += 1
     lcnt[p, i] = wpos - b0
 
 
-@njit(cache=True, _nrt=False)
-def _add_link(p, i, xn, sn, sa, sb, sz, xp, owner, G, L):
-    # link of particle p in direction i from fluid node xn into its node sn = (sa, sb, sz)
+@njit(cache=True)
+def _set_owners(n, nodes, news, owner, x, G, L):
+    """Give ``nodes[t]`` to ``news[t]`` (a particle or FLUID), ``t < n``, in order, and append
+    the links each change creates, so that the live entries of the lists are exactly
+    ``{(x, s, i): owner[s] >= 0, owner[x] = FLUID}``; links a change ends die with it (lazy
+    deletion; the node is marked in ``chg``). One loop without calls: per node the work is a few
+    table lookups, so a call passing the arrays of G and L would cost more than the work
+    (measured: 2x)."""
     dims, az, origin, periodic, xmap, ymap, zmap, e = G
-    lbase, lcap, lcnt, LX, LS, LM, lerr, nown = L
-    if lcnt[p, i] >= lcap[p, i]:
-        _compact(p, i, owner, L)
-        if lcnt[p, i] >= lcap[p, i]:
-            lerr[0] += 1
-            return
-    pos = lbase[p, i] + lcnt[p, i]
-    LX[pos] = xn
-    LS[pos] = sn
-    mid0 = origin[0] + sa - 0.5 * e[i, 0]
-    mid1 = origin[1] + sb - 0.5 * e[i, 1]
-    mid2 = origin[2] + sz - 0.5 * e[i, 2]
-    for d in range(3):
-        m = mid0 if d == 0 else (mid1 if d == 1 else mid2)
-        r = m - xp[d]
-        if periodic[d]:
-            per = float(dims[d])
-            r -= per * math.floor(r / per + 0.5)
-        LM[d, pos] = xp[d] + r
-    lcnt[p, i] += 1
+    lbase, lcap, lcnt, LN, LC, lerr, nown, chg, chg_list, nchg = L
+    nx, ny, nz = dims[0], dims[1], dims[2]
+    Q = e.shape[0]
+    for t in range(n):
+        node = nodes[t]
+        new = news[t]
+        old = owner[node]
+        if old == new:
+            continue
+        if not chg[node]:
+            chg[node] = 1
+            if nchg[0] < chg_list.shape[0]:
+                chg_list[nchg[0]] = node
+            nchg[0] += 1
+        a = node // (ny * az)
+        b = (node // az) % ny
+        zi = node % az
+        owner[node] = new
+        if old >= 0:
+            nown[old] -= 1
+        if new >= 0:
+            nown[new] += 1
+        for i in range(1, Q):
+            # new >= 0: links of `new` from fluid neighbours x = node - e_i into the node;
+            # new == FLUID: links of particle neighbours s = node + e_i from the node
+            sgn = 1 if new == FLUID else -1
+            na = xmap[a + sgn * e[i, 0] + nx]
+            nb = ymap[b + sgn * e[i, 1] + ny]
+            nzi = zmap[zi + sgn * e[i, 2] + nz]
+            nbr = (na * ny + nb) * az + nzi
+            o = owner[nbr]
+            if new >= 0:
+                if o != FLUID:
+                    continue
+                p, xn, sn, sa, sb, sz = new, nbr, node, a, b, zi
+            else:
+                if o < 0:
+                    continue
+                p, xn, sn, sa, sb, sz = o, node, nbr, na, nb, nzi
+            if lcnt[p, i] >= lcap[p, i]:
+                _compact(p, i, owner, L)
+                if lcnt[p, i] >= lcap[p, i]:
+                    lerr[0] += 1
+                    continue
+            pos = lbase[p, i] + lcnt[p, i]
+            LN[pos, 0] = xn
+            LN[pos, 1] = sn
+            for d in range(3):
+                c = sa if d == 0 else (sb if d == 1 else sz)
+                if periodic[d]:
+                    # the image of the node nearest the centre (minimum image of the midpoint)
+                    r = origin[d] + c - 0.5 * e[i, d] - x[p, d]
+                    c -= dims[d] * int(math.floor(r / dims[d] + 0.5))
+                LC[pos, d] = c
+            lcnt[p, i] += 1
 
 
-@njit(cache=True, _nrt=False)
-def _set_owner(node, new, owner, x, G, L):
-    """Give ``node`` to ``new`` (a particle or FLUID) and append the links this creates, so that
-    the live entries of the lists are exactly ``{(x, s, i): owner[s] >= 0, owner[x] = FLUID}``;
-    links this ends die with the owner change (lazy deletion)."""
-    old = owner[node]
-    if old == new:
-        return
-    dims, az, origin, periodic, xmap, ymap, zmap, e = G
-    nown = L[7]
-    a, b, zi = _decode(node, dims[1], az)
-    owner[node] = new
-    if old >= 0:
-        nown[old] -= 1
-    if new >= 0:
-        nown[new] += 1
-    if new >= 0:
-        for i in range(1, e.shape[0]):
-            xn = _shifted(a, b, zi, -e[i, 0], -e[i, 1], -e[i, 2], G)
-            if owner[xn] == FLUID:
-                _add_link(new, i, xn, node, a, b, zi, x[new], owner, G, L)
-    elif new == FLUID:
-        for i in range(1, e.shape[0]):
-            sn = _shifted(a, b, zi, e[i, 0], e[i, 1], e[i, 2], G)
-            p = owner[sn]
-            if p >= 0:
-                sa, sb, sz = _decode(sn, dims[1], az)
-                _add_link(p, i, node, sn, sa, sb, sz, x[p], owner, G, L)
+@njit(cache=True)
+def clear_changed(chg, chg_list, nchg):
+    """Unmark the nodes marked since the last link passes (all of them if the list overflowed)."""
+    n = nchg[0]
+    if n > chg_list.shape[0]:
+        chg[:] = 0
+    else:
+        for t in range(n):
+            chg[chg_list[t]] = 0
+    nchg[0] = 0
 
 
 @njit(cache=True)
@@ -412,8 +477,11 @@ def mark_initial(order, rect, run_off, z1, z2, owner, count, x, G, L):
     particle to claim a fluid node owns it. Builds the link lists on the way."""
     dims, az, origin, periodic, xmap, ymap, zmap, e = G
     nx, ny, nz = dims[0], dims[1], dims[2]
+    one_node = np.zeros(1, np.int64)
+    one_new = np.zeros(1, np.int64)
     for m in range(order.shape[0]):
         k = order[m]
+        one_new[0] = k
         base = run_off[k]
         nb = rect[k, 3]
         for ca in range(rect[k, 2]):
@@ -428,7 +496,8 @@ def mark_initial(order, rect, run_off, z1, z2, owner, count, x, G, L):
                         continue
                     count[node] += 1
                     if owner[node] == FLUID:
-                        _set_owner(node, k, owner, x, G, L)
+                        one_node[0] = node
+                        _set_owners(1, one_node, one_new, owner, x, G, L)
 
 
 # ----------------------------------------------------------------------------------------------
@@ -436,15 +505,19 @@ def mark_initial(order, rect, run_off, z1, z2, owner, count, x, G, L):
 
 
 @njit(parallel=True, cache=True, fastmath=True)
-def couple_free(f2, owner, ids, x, e, w, opp, rho0, mass, inertia, q, v, wb, fext, imp, om, force, torque,
-                exch, lbase, lcnt, LX, LS, LM, SF, SM):
+def couple_free(f2, owner, chg, ids, x, mass, inertia, q, v, wb, fext, imp, om, force, torque, exch, w, opp, rho0,
+                G, lbase, lcnt, LN, LC, SF, SM):
     """One step of the coupling of the free particles ``ids`` (module docstring), one particle per
-    iteration: pass 1 swap-removes dead links (lazy deletion) and sums ``(F0, T0)`` (reference pressure
-    removed) and the self-friction ``Z`` over the live ones; the implicit update ``(M + Z) V' = M V + G`` gives the new velocities; pass 2
-    writes Ladd's ghost populations Eq. (8) with ``V'``. Outputs: ``v``, ``wb``, lab ``om``, and the
-    hydrodynamic ``force`` and ``torque`` of the step (Eqs. (9)-(12) with ``V'``, plus the
-    cover/uncover impulses ``imp``, which are cleared); ``exch[k]``, the momentum the fluid loses
-    through k's links (the same with the reference pressure, for the flow-rate bookkeeping)."""
+    iteration: pass 1 swap-removes dead links (lazy deletion; only links with a node marked in
+    ``chg`` are tested) and sums ``(F0, T0)`` (reference pressure removed) and the self-friction
+    ``Z`` over the live ones; the implicit update ``(M + Z) V' = M V + G`` gives the new
+    velocities; pass 2 writes Ladd's ghost populations Eq. (8) with ``V'``. Outputs: ``v``,
+    ``wb``, lab ``om``, and the hydrodynamic ``force`` and ``torque`` of the step (Eqs. (9)-(12)
+    with ``V'``, plus the cover/uncover impulses ``imp``, which are cleared); ``exch[k]``, the
+    momentum the fluid loses through k's links (the same with the reference pressure, for the
+    flow-rate bookkeeping). ``SF``, ``SM``: per-thread scratch."""
+    dims, az, origin, periodic, xmap, ymap, zmap, e = G
+    nx, ny, nz = dims[0], dims[1], dims[2]
     Q = e.shape[0]
     for m in prange(ids.shape[0]):
         k = ids[m]
@@ -454,6 +527,10 @@ def couple_free(f2, owner, ids, x, e, w, opp, rho0, mass, inertia, q, v, wb, fex
         X0 = x[k, 0]
         X1 = x[k, 1]
         X2 = x[k, 2]
+        # lever arm r = origin + c - e_i/2 - X: per direction a constant plus the coordinates
+        O0 = origin[0] - X0
+        O1 = origin[1] - X1
+        O2 = origin[2] - X2
         off0 = lbase[k, 1]
         for p in range(6):
             for r in range(7):
@@ -470,6 +547,20 @@ def couple_free(f2, owner, ids, x, e, w, opp, rho0, mass, inertia, q, v, wb, fex
         # ---- pass 1: compaction and sums per direction, folded into G and Z
         for i in range(1, Q):
             wr = w[i] * rho0
+            ei0 = e[i, 0]
+            ei1 = e[i, 1]
+            ei2 = e[i, 2]
+            a0 = O0 - 0.5 * ei0
+            a1 = O1 - 0.5 * ei1
+            a2 = O2 - 0.5 * ei2
+            b0 = lbase[k, i]
+            end = b0 + lcnt[k, i]
+            # The scattered reads of f* first, in a loop without branches: their cache misses
+            # (f is out of cache after the sweep) overlap instead of waiting one by one.
+            for pos in range(b0, end):
+                if pos + _PREFETCH < end:
+                    _prefetch(f2, i, LN[pos + _PREFETCH, 0], 0)
+                LF[pos - off0] = f2[i, LN[pos, 0]]
             rxs = 0.0
             rys = 0.0
             rzs = 0.0
@@ -483,35 +574,25 @@ def couple_free(f2, owner, ids, x, e, w, opp, rho0, mass, inertia, q, v, wb, fex
             sfx = 0.0
             sfy = 0.0
             sfz = 0.0
-            b0 = lbase[k, i]
-            end = b0 + lcnt[k, i]
-            # The scattered reads of f* first, in a loop without branches: their cache misses
-            # (f is out of cache after the sweep) overlap instead of waiting one by one.
-            for pos in range(b0, end):
-                LF[pos - off0] = f2[i, LX[pos]]
             pos = b0
             while pos < end:
-                xn = LX[pos]
-                sn = LS[pos]
-                if owner[sn] != k or owner[xn] != FLUID:
-                    # dead link: the last entry takes its place (swap-remove)
-                    end -= 1
-                    LX[pos] = LX[end]
-                    LS[pos] = LS[end]
-                    LM[0, pos] = LM[0, end]
-                    LM[1, pos] = LM[1, end]
-                    LM[2, pos] = LM[2, end]
-                    LF[pos - off0] = LF[end - off0]
-                    continue
-                m0 = LM[0, pos]
-                m1 = LM[1, pos]
-                m2 = LM[2, pos]
-                fv = LF[pos - off0]
+                xn = LN[pos, 0]
+                sn = LN[pos, 1]
+                if chg[sn] | chg[xn]:
+                    if owner[sn] != k or owner[xn] != FLUID:
+                        # dead link: the last entry takes its place (swap-remove)
+                        end -= 1
+                        LN[pos, 0] = LN[end, 0]
+                        LN[pos, 1] = LN[end, 1]
+                        for d in range(3):
+                            LC[pos, d] = LC[end, d]
+                        LF[pos - off0] = LF[end - off0]
+                        continue
+                rx = a0 + LC[pos, 0]
+                ry = a1 + LC[pos, 1]
+                rz = a2 + LC[pos, 2]
+                fv = LF[pos - off0] - wr
                 pos += 1
-                fv -= wr
-                rx = m0 - X0
-                ry = m1 - X1
-                rz = m2 - X2
                 rxs += rx
                 rys += ry
                 rzs += rz
@@ -625,22 +706,26 @@ def couple_free(f2, owner, ids, x, e, w, opp, rho0, mass, inertia, q, v, wb, fex
             ez = float(e[i, 2])
             oi = opp[i]
             c6 = 6.0 * w[i] * rho0
-            # e . u_b = e . U + Omega . (r x e) = e . U + r . (e x Omega)
-            eu = ex * ux + ey * uy + ez * uz - (X0 * (ey * oz - ez * oy) + X1 * (ez * ox - ex * oz) + X2 * (ex * oy - ey * ox))
+            # e . u_b = e . U + Omega . (r x e) = e . U + r . (e x Omega), r = a + LC
             cx = c6 * (ey * oz - ez * oy)
             cy = c6 * (ez * ox - ex * oz)
             cz = c6 * (ex * oy - ey * ox)
-            c6eu = c6 * eu
+            c6eu = c6 * (ex * ux + ey * uy + ez * uz) + (O0 - 0.5 * ex) * cx + (O1 - 0.5 * ey) * cy + (O2 - 0.5 * ez) * cz
             b0 = lbase[k, i]
-            for pos in range(b0, b0 + lcnt[k, i]):
-                f2[oi, LS[pos]] = LF[pos - off0] - c6eu - LM[0, pos] * cx - LM[1, pos] * cy - LM[2, pos] * cz
+            end = b0 + lcnt[k, i]
+            for pos in range(b0, end):
+                if pos + _PREFETCH < end:
+                    _prefetch(f2, oi, LN[pos + _PREFETCH, 1], 1)
+                f2[oi, LN[pos, 1]] = LF[pos - off0] - c6eu - LC[pos, 0] * cx - LC[pos, 1] * cy - LC[pos, 2] * cz
 
 
 @njit(parallel=True, cache=True, fastmath=True)
-def fixed_fill(f2, owner, ids, x, e, w, opp, rho0, force, torque, exch, lbase, lcnt, LX, LS, LM):
+def fixed_fill(f2, owner, chg, ids, x, force, torque, exch, w, opp, rho0, G, lbase, lcnt, LN, LC):
     """Fixed particles: half-way bounce-back on their live links (Eq. (8) with u_b = 0; dead links
-    are dropped) and their force and torque, Eqs. (9)-(12) (reference pressure removed); ``exch``
-    as in ``couple_free``."""
+    are dropped, as in ``couple_free``) and their force and torque, Eqs. (9)-(12) (reference
+    pressure removed); ``exch`` as in ``couple_free``."""
+    dims, az, origin, periodic, xmap, ymap, zmap, e = G
+    nx, ny, nz = dims[0], dims[1], dims[2]
     Q = e.shape[0]
     for m in prange(ids.shape[0]):
         k = ids[m]
@@ -660,38 +745,40 @@ def fixed_fill(f2, owner, ids, x, e, w, opp, rho0, force, torque, exch, lbase, l
             sfx = 0.0
             sfy = 0.0
             sfz = 0.0
+            ei0 = e[i, 0]
+            ei1 = e[i, 1]
+            ei2 = e[i, 2]
+            a0 = origin[0] - 0.5 * ei0 - x[k, 0]
+            a1 = origin[1] - 0.5 * ei1 - x[k, 1]
+            a2 = origin[2] - 0.5 * ei2 - x[k, 2]
             b0 = lbase[k, i]
             end = b0 + lcnt[k, i]
             pos = b0
             while pos < end:
-                xn = LX[pos]
-                sn = LS[pos]
-                if owner[sn] != k or owner[xn] != FLUID:
+                xn = LN[pos, 0]
+                sn = LN[pos, 1]
+                if (chg[sn] and owner[sn] != k) or (chg[xn] and owner[xn] != FLUID):
                     end -= 1
-                    LX[pos] = LX[end]
-                    LS[pos] = LS[end]
-                    LM[0, pos] = LM[0, end]
-                    LM[1, pos] = LM[1, end]
-                    LM[2, pos] = LM[2, end]
+                    LN[pos, 0] = LN[end, 0]
+                    LN[pos, 1] = LN[end, 1]
+                    for d in range(3):
+                        LC[pos, d] = LC[end, d]
                     continue
-                m0 = LM[0, pos]
-                m1 = LM[1, pos]
-                m2 = LM[2, pos]
-                pos += 1
                 fv = f2[i, xn]
                 f2[oi, sn] = fv
                 fv -= wr
                 sf += fv
-                sfx += fv * (m0 - x[k, 0])
-                sfy += fv * (m1 - x[k, 1])
-                sfz += fv * (m2 - x[k, 2])
+                sfx += fv * (a0 + LC[pos, 0])
+                sfy += fv * (a1 + LC[pos, 1])
+                sfz += fv * (a2 + LC[pos, 2])
+                pos += 1
             lcnt[k, i] = end - b0
-            ex = float(e[i, 0])
+            ex = float(ei0)
+            ey = float(ei1)
+            ez = float(ei2)
             e0 += 2.0 * ex * wr * (end - b0)
-            e1 += 2.0 * float(e[i, 1]) * wr * (end - b0)
-            e2 += 2.0 * float(e[i, 2]) * wr * (end - b0)
-            ey = float(e[i, 1])
-            ez = float(e[i, 2])
+            e1 += 2.0 * ey * wr * (end - b0)
+            e2 += 2.0 * ez * wr * (end - b0)
             fx_ += 2.0 * ex * sf
             fy_ += 2.0 * ey * sf
             fz_ += 2.0 * ez * sf
@@ -959,7 +1046,10 @@ def _count_changes(ids, chg_off, chg_node, chg_d, chg_n, owner, count, touched, 
 @njit(cache=True)
 def _change_owners(nt, touch_list, new_own, jb, x, owner, unc_list, unc_old, imp, moved, G, L):
     # Serial, in the order of the touched list: the owner changes append links, and the impulse
-    # sums keep one order (results independent of the thread count).
+    # sums keep one order (results independent of the thread count). The impulses depend on the
+    # old owners only, so they come first, then the owner changes in the same order.
+    dims, az, origin, periodic, xmap, ymap, zmap, e = G
+    nx, ny, nz = dims[0], dims[1], dims[2]
     n_cov = 0
     n_unc = 0
     for t in range(nt):
@@ -969,8 +1059,17 @@ def _change_owners(nt, touch_list, new_own, jb, x, owner, unc_list, unc_old, imp
         if new == old:
             continue
         if old == FLUID:
-            # a fluid node swallowed: its momentum goes to the particle
-            r = _node_vector(node, x[new], G)
+            # a fluid node swallowed: its momentum goes to the particle, r its minimum-image
+            # vector from the centre
+            r0 = origin[0] + node // (ny * az) - x[new, 0]
+            r1 = origin[1] + (node // az) % ny - x[new, 1]
+            r2 = origin[2] + node % az - x[new, 2]
+            if periodic[0]:
+                r0 -= nx * math.floor(r0 / nx + 0.5)
+            if periodic[1]:
+                r1 -= ny * math.floor(r1 / ny + 0.5)
+            if periodic[2]:
+                r2 -= nz * math.floor(r2 / nz + 0.5)
             jx = jb[t, 0]
             jy = jb[t, 1]
             jz = jb[t, 2]
@@ -980,15 +1079,15 @@ def _change_owners(nt, touch_list, new_own, jb, x, owner, unc_list, unc_old, imp
             moved[0] += jx
             moved[1] += jy
             moved[2] += jz
-            imp[new, 3] += r[1] * jz - r[2] * jy
-            imp[new, 4] += r[2] * jx - r[0] * jz
-            imp[new, 5] += r[0] * jy - r[1] * jx
+            imp[new, 3] += r1 * jz - r2 * jy
+            imp[new, 4] += r2 * jx - r0 * jz
+            imp[new, 5] += r0 * jy - r1 * jx
             n_cov += 1
         elif new == FLUID:
             unc_list[n_unc] = node
             unc_old[n_unc] = old
             n_unc += 1
-        _set_owner(node, new, owner, x, G, L)
+    _set_owners(nt, touch_list, new_own, owner, x, G, L)
     return n_cov, n_unc
 
 
@@ -1036,8 +1135,8 @@ def apply_changes(ids, chg_off, chg_node, chg_d, chg_n, all_ids, rect, run_off, 
 
 
 @njit(cache=True)
-def wrap_positions(ids, x, lo, dims, periodic, rect, run_off, z1, z2, lbase, lcnt, LM):
-    """Bring centres back into the periodic box; shift their runs and link midpoints by the same
+def wrap_positions(ids, x, lo, dims, periodic, rect, run_off, z1, z2, lbase, lcnt, LC):
+    """Bring centres back into the periodic box; shift their runs and link coordinates by the same
     whole number of periods."""
     for m in range(ids.shape[0]):
         k = ids[m]
@@ -1058,7 +1157,7 @@ def wrap_positions(ids, x, lo, dims, periodic, rect, run_off, z1, z2, lbase, lcn
                     z2[c] -= shift
             for i in range(1, lbase.shape[1]):
                 for pos in range(lbase[k, i], lbase[k, i] + lcnt[k, i]):
-                    LM[d, pos] -= s * per
+                    LC[pos, d] -= shift
 
 
 # ----------------------------------------------------------------------------------------------
@@ -1197,11 +1296,18 @@ class ParticleSystem:
         self.lbase[:] = flat[:-1].reshape(n, Q)
         total = int(flat[-1])
         self.lcnt = np.zeros((n, Q), np.int64)
-        self.LX = np.zeros(total, np.int64)
-        self.LS = np.zeros(total, np.int64)
-        self.LM = np.zeros((3, total))
+        if size >= 2**31 or self.dims.max() >= 10000:
+            raise ValueError(f"grid {tuple(self.dims)} too large for particles: link lists hold node indices as "
+                             "int32 and unwrapped coordinates as int16 (below 10000 nodes per axis)")
+        self.LN = np.zeros((total, 2), np.int32)
+        self.LC = np.zeros((total, 4), np.int16)
         self.lerr = np.zeros(1, np.int64)
         self.nown = np.zeros(n, np.int64)
+        # nodes whose owner changed since the last link passes (a node changes at most once per
+        # move, so a move's touched-node capacity bounds the list; mark_initial overflows it)
+        self.chg = np.zeros(size, np.uint8)
+        self.chg_list = np.zeros(max(tot, 1), np.int64)
+        self.nchg = np.zeros(1, np.int64)
         nt = numba.config.NUMBA_NUM_THREADS
         per_particle = int(lcap.sum(axis=1).max()) if n else 1
         self.scratch = (np.zeros((nt, per_particle)), np.zeros((nt, 6, 7)))
@@ -1228,7 +1334,8 @@ class ParticleSystem:
 
     @property
     def L(self):
-        return (self.lbase, self.lcap, self.lcnt, self.LX, self.LS, self.LM, self.lerr, self.nown)
+        return (self.lbase, self.lcap, self.lcnt, self.LN, self.LC, self.lerr, self.nown, self.chg,
+                self.chg_list, self.nchg)
 
     def _check_links(self):
         if self.lerr[0]:
@@ -1256,9 +1363,11 @@ class ParticleSystem:
         """Bounce-back and force of the fixed particles (``pre``)."""
         ids = self.fixed_ids
         if len(ids):
-            fixed_fill(f2, self.owner, ids, self.bodies.x, self.e, self.w, self.opp, self.rho0, self.force,
-                       self.torque, self.exch, self.lbase, self.lcnt, self.LX, self.LS, self.LM)
+            fixed_fill(f2, self.owner, self.chg, ids, self.bodies.x, self.force, self.torque, self.exch, self.w,
+                       self.opp, self.rho0, self.G, self.lbase, self.lcnt, self.LN, self.LC)
             _accumulate(ids, self.force, self.torque, self.force_sum, self.torque_sum, self.n_sum)
+            if not len(self.free_ids):  # the last link pass of the step
+                clear_changed(self.chg, self.chg_list, self.nchg)
 
     def couple_free(self, f2, body_force):
         """Link sums -> implicit velocity update -> ghost fill of the free particles (``pre``)."""
@@ -1268,10 +1377,11 @@ class ParticleSystem:
         b = self.bodies
         fb = np.asarray(body_force, dtype=np.float64)
         self.fext[:, :3] = self.vol[:, None] * (fb[None, :] + (b.mass / self.vol - self.rho0)[:, None] * self.gravity)
-        couple_free(f2, self.owner, ids, b.x, self.e, self.w, self.opp, self.rho0, b.mass, b.inertia, b.q, b.v,
-                    b.wb, self.fext, self.imp, self.om, self.force, self.torque, self.exch, self.lbase, self.lcnt,
-                    self.LX, self.LS, self.LM, *self.scratch)
+        couple_free(f2, self.owner, self.chg, ids, b.x, b.mass, b.inertia, b.q, b.v, b.wb, self.fext, self.imp,
+                    self.om, self.force, self.torque, self.exch, self.w, self.opp, self.rho0, self.G, self.lbase,
+                    self.lcnt, self.LN, self.LC, *self.scratch)
         _accumulate(ids, self.force, self.torque, self.force_sum, self.torque_sum, self.n_sum)
+        clear_changed(self.chg, self.chg_list, self.nchg)  # the last link pass of the step
 
     def move(self, f2):
         """Drift of the free particles over one step with their new velocities, then the remap
@@ -1294,7 +1404,7 @@ class ParticleSystem:
         self.n_fluid -= self.last_cover[0] - self.last_cover[1]
         self._check_links()
         wrap_positions(ids, b.x, self.lo, self.dims, self.periodic, self.rect_n, self.run_off, self.z1_n, self.z2_n,
-                       self.lbase, self.lcnt, self.LM)
+                       self.lbase, self.lcnt, self.LC)
         self.rect, self.rect_n = self.rect_n, self.rect
         self.z1, self.z1_n = self.z1_n, self.z1
         self.z2, self.z2_n = self.z2_n, self.z2
@@ -1347,11 +1457,14 @@ class ParticleSystem:
         xs, ss, ii, rr = [], [], [], []
         for i in range(1, len(self.w)):
             sl = slice(self.lbase[k, i], self.lbase[k, i] + self.lcnt[k, i])
-            live = (self.owner[self.LS[sl]] == k) & (self.owner[self.LX[sl]] == FLUID)
-            xs.append(self.LX[sl][live])
-            ss.append(self.LS[sl][live])
+            c = self.LC[sl, :3].astype(np.int64)
+            xn, sn = self.LN[sl, 0].astype(np.int64), self.LN[sl, 1].astype(np.int64)
+            live = (self.owner[sn] == k) & (self.owner[xn] == FLUID)
+            xs.append(xn[live])
+            ss.append(sn[live])
             ii.append(np.full(int(live.sum()), i))
-            rr.append(self.LM[:, sl][:, live].T - self.bodies.x[k])
+            mid = self.origin + c[live] - 0.5 * self.e[i]
+            rr.append(mid - self.bodies.x[k])
         return np.concatenate(xs), np.concatenate(ss), np.concatenate(ii), np.concatenate(rr)
 
 

@@ -358,7 +358,7 @@ def test_moving_particles_give_bit_identical_results_on_one_and_two_threads():
         numba.set_num_threads(before)
     assert p1.last_cover != (0, 0)  # nodes were covered and uncovered
     assert np.array_equal(s1.f, s2.f)
-    for a in ("owner", "lcnt", "LX", "LS", "LM", "imp"):
+    for a in ("owner", "lcnt", "LN", "LC", "chg", "imp"):
         assert np.array_equal(getattr(p1, a), getattr(p2, a)), a
     for a in ("x", "v", "q", "wb"):
         assert np.array_equal(getattr(p1.bodies, a), getattr(p2.bodies, a)), a
