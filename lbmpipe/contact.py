@@ -82,7 +82,7 @@ _FAR = 2
 # small vector helpers
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _dot(a, b):
     return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
 
@@ -97,7 +97,7 @@ def _cross_into(a, b, out):
     out[2] = z
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _support3(kind, h, x, R, core, d0, d1, d2):
     """Lab-frame support point of a body along the lab direction (d0, d1, d2), as a tuple.
     ``shapes.support_body`` written out on scalars (same operations, so the same bits; a test
@@ -143,10 +143,11 @@ def _support_lab(kind, h, x, R, core, d, out):
 
 # ------------------------------------------------------------------------------------------------
 # GJK: closest point of a simplex to the origin (Ericson 5.1), reducing the simplex in place.
-# Nothing here allocates: these run ~20 times per pair and per narrow-phase call.
+# Nothing here allocates: these run ~20 times per pair and per narrow-phase call, and they are
+# inlined (numba IR) into GJK, since a call with array arguments costs more than their arithmetic.
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _keep(W, WA, WB, lam, mask):
     """Compact the rows whose bit is set in ``mask`` to the front, in ascending order (so no row
     is overwritten before it is moved). Returns their number."""
@@ -163,7 +164,7 @@ def _keep(W, WA, WB, lam, mask):
     return r
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _closest_triangle(a, b, c):
     """Barycentric weights (tuple of 3) of the point of triangle abc closest to the origin."""
     ab0 = b[0] - a[0]
@@ -233,7 +234,7 @@ def _closest_triangle(a, b, c):
     return 1.0 - v - w, v, w
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _simplex_closest(W, WA, WB, n, lam, v):
     """Closest point ``v`` of the simplex W[0..n-1] to the origin; reduces the simplex to the
     vertices with non-zero weight (stored first, weights in ``lam``). Returns the new size, or 4
