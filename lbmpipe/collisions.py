@@ -816,6 +816,9 @@ def _resolve_kernel(
         gt_w = np.empty((nwall, _NG))
         ev1 = np.full(npair + nwall, -1, dtype=np.int64)  # ver of the bodies at a contact's last impulse evaluation
         ev2 = np.full(npair + nwall, -1, dtype=np.int64)
+        # contact geometry set this round (terms to compute); active with its present geometry
+        fresh = np.zeros(npair + nwall, dtype=np.bool_)
+        touch = np.zeros(npair + nwall, dtype=np.bool_)
         for rnd in range(max_sweeps):
             ntodo = 0
             for t in range(nnear):
@@ -831,6 +834,9 @@ def _resolve_kernel(
                 _activate_par(todo, ntodo, pi, pj, ps, cg, cn, cc, wi, wg, wn, wc, npair, kind, h, x, v, wb, Rm, sweep,
                               dt, contact_gap, spec, vtol, manifold_tol, dcode, Rp, cx, cy, lo, hi, on_p, gp_n, gp_c, on_w,
                               gw_n, gw_c)
+                for t in range(ntodo):
+                    fresh[todo[t]] = True
+                    touch[todo[t]] = False
             else:
                 for t in range(ntodo):
                     m = todo[t]
@@ -840,10 +846,13 @@ def _resolve_kernel(
                         i = pi[m]
                         j = pj[m]
                         if cg[m] <= contact_gap and _normal_speed(i, j, m, ps, cc, cn, x, v, wb, Rm) > vtol:
-                            on_p[m] = True
-                            for k in range(3):
-                                gp_n[m, k] = cn[m, k]
-                                gp_c[m, k] = cc[m, k]
+                            if not (on_p[m] and touch[m]):  # else it has this geometry and its terms already
+                                on_p[m] = True
+                                for k in range(3):
+                                    gp_n[m, k] = cn[m, k]
+                                    gp_c[m, k] = cc[m, k]
+                                touch[m] = True
+                                fresh[m] = True
                             continue
                         if not (spec and cg[m] - (sweep[i] + sweep[j]) * dt <= _SWEEP_SLACK):
                             continue
@@ -851,19 +860,27 @@ def _resolve_kernel(
                         mw = m - npair
                         i = wi[mw]
                         if wg[mw] <= contact_gap and _normal_speed(i, -1, mw, wn, wc, wn, x, v, wb, Rm) > vtol:
-                            on_w[mw] = True
-                            for k in range(3):
-                                gw_n[mw, k] = wn[mw, k]
-                                gw_c[mw, k] = wc[mw, k]
+                            if not (on_w[mw] and touch[m]):
+                                on_w[mw] = True
+                                for k in range(3):
+                                    gw_n[mw, k] = wn[mw, k]
+                                    gw_c[mw, k] = wc[mw, k]
+                                touch[m] = True
+                                fresh[m] = True
                             continue
                         if not (spec and wg[mw] - sweep[i] * dt <= _SWEEP_SLACK):
                             continue
                     _activate_one(m, pi, pj, ps, cg, cn, cc, wi, wg, wn, wc, npair, kind, h, x, v, wb, Rm, sweep,
                                   dt, contact_gap, spec, vtol, manifold_tol, dcode, Rp, cx, cy, lo, hi, on_p, gp_n, gp_c,
                                   on_w, gw_n, gw_c, scr)
+                    fresh[m] = True
+                    touch[m] = False
             # impulse terms of the contacts whose geometry this round may have set
             for t in range(ntodo):
                 m = todo[t]
+                if not fresh[m]:
+                    continue
+                fresh[m] = False
                 if m < npair:
                     if on_p[m]:
                         _impulse_terms(pi[m], pj[m], ps[m, 0], ps[m, 1], ps[m, 2], gp_c[m], gp_n[m], x, Rm, im, iinv,
