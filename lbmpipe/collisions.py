@@ -172,21 +172,19 @@ _S_CAND, _S_PAIR, _S_WALL, _S_IMP, _S_OVB, _S_OVA, _S_SWEEP, _S_PROJ, _S_UNRES, 
 _NSTATS = 10
 
 
+_NG = 13  # impulse terms of a contact: l_1 (3), l_2 (3), a_1 (3), a_2 (3), denominator of Eq. (19)
+
+
 @njit(cache=True)
-def _impulse(i, j, sx, sy, sz, c, p, x, v, wb, Rm, im, iinv, k_rest, vtol):
-    """Apply Eqs. (16)-(19) (j >= 0) or Eq. (21) (j < 0: wall) to an active contact if it
-    approaches. Returns the impulse I (0 if none)."""
-    # lever arms and contact-point velocities v + omega x l (omega_lab = A wb)
+def _impulse_terms(i, j, sx, sy, sz, c, p, x, Rm, im, iinv, g, m):
+    """The parts of Eqs. (18)-(19) that depend only on the contact geometry, into row m of g:
+    lever arms l_1 = O - x_1, l_2 = O - (x_2 + s) (lab), a_i = J_i^-1 (l_is x p_is) (body
+    frame) and the denominator 1/m_1 + 1/m_2 + t_1 + t_2 (Eq. (19) divided through by m_1;
+    j < 0: wall, the terms of body 2 left out). Positions and orientations do not change while
+    impulses are applied, so a contact's terms serve all its sweeps."""
     l1x = c[0] - x[i, 0]
     l1y = c[1] - x[i, 1]
     l1z = c[2] - x[i, 2]
-    w1x = Rm[i, 0, 0] * wb[i, 0] + Rm[i, 0, 1] * wb[i, 1] + Rm[i, 0, 2] * wb[i, 2]
-    w1y = Rm[i, 1, 0] * wb[i, 0] + Rm[i, 1, 1] * wb[i, 1] + Rm[i, 1, 2] * wb[i, 2]
-    w1z = Rm[i, 2, 0] * wb[i, 0] + Rm[i, 2, 1] * wb[i, 1] + Rm[i, 2, 2] * wb[i, 2]
-    u1x = v[i, 0] + w1y * l1z - w1z * l1y
-    u1y = v[i, 1] + w1z * l1x - w1x * l1z
-    u1z = v[i, 2] + w1x * l1y - w1y * l1x
-    vn = u1x * p[0] + u1y * p[1] + u1z * p[2]
     l2x = 0.0
     l2y = 0.0
     l2z = 0.0
@@ -194,15 +192,6 @@ def _impulse(i, j, sx, sy, sz, c, p, x, v, wb, Rm, im, iinv, k_rest, vtol):
         l2x = c[0] - (x[j, 0] + sx)
         l2y = c[1] - (x[j, 1] + sy)
         l2z = c[2] - (x[j, 2] + sz)
-        w2x = Rm[j, 0, 0] * wb[j, 0] + Rm[j, 0, 1] * wb[j, 1] + Rm[j, 0, 2] * wb[j, 2]
-        w2y = Rm[j, 1, 0] * wb[j, 0] + Rm[j, 1, 1] * wb[j, 1] + Rm[j, 1, 2] * wb[j, 2]
-        w2z = Rm[j, 2, 0] * wb[j, 0] + Rm[j, 2, 1] * wb[j, 1] + Rm[j, 2, 2] * wb[j, 2]
-        u2x = v[j, 0] + w2y * l2z - w2z * l2y
-        u2y = v[j, 1] + w2z * l2x - w2x * l2z
-        u2z = v[j, 2] + w2x * l2y - w2y * l2x
-        vn -= u2x * p[0] + u2y * p[1] + u2z * p[2]
-    if vn <= vtol:
-        return 0.0
     # a_i = J_i^-1 (l_is x p_is) in the body frame (Eq. (18)); t_i = ([A_i a_i] x l_i) . p (Eq. (19))
     ls0 = Rm[i, 0, 0] * l1x + Rm[i, 1, 0] * l1y + Rm[i, 2, 0] * l1z
     ls1 = Rm[i, 0, 1] * l1x + Rm[i, 1, 1] * l1y + Rm[i, 2, 1] * l1z
@@ -236,49 +225,103 @@ def _impulse(i, j, sx, sy, sz, c, p, x, v, wb, Rm, im, iinv, k_rest, vtol):
         b2 = Rm[j, 2, 0] * a20 + Rm[j, 2, 1] * a21 + Rm[j, 2, 2] * a22
         t2 = (b1 * l2z - b2 * l2y) * p[0] + (b2 * l2x - b0 * l2z) * p[1] + (b0 * l2y - b1 * l2x) * p[2]
         den += im[j] + t2
+    g[m, 0], g[m, 1], g[m, 2] = l1x, l1y, l1z
+    g[m, 3], g[m, 4], g[m, 5] = l2x, l2y, l2z
+    g[m, 6], g[m, 7], g[m, 8] = a10, a11, a12
+    g[m, 9], g[m, 10], g[m, 11] = a20, a21, a22
+    g[m, 12] = den
+
+
+# Inlined (numba IR) and indexed by row rather than handed row views: the sweeps call this
+# ~10^4 times per step, and a call with array arguments costs several times the arithmetic.
+@njit(cache=True, inline="always")
+def _impulse_apply(i, j, m, p, g, v, wb, Rm, im, k_rest, vtol):
+    """Eqs. (16)-(19) (j >= 0) or Eq. (21) (j < 0: wall) for the contact with normal p[m] and
+    terms g[m] (``_impulse_terms``), applied if it approaches. Returns the impulse I (0 if none)."""
+    # contact-point velocities u_i = v_i + omega_i x l_i (omega_lab = A wb)
+    l1x = g[m, 0]
+    l1y = g[m, 1]
+    l1z = g[m, 2]
+    w1x = Rm[i, 0, 0] * wb[i, 0] + Rm[i, 0, 1] * wb[i, 1] + Rm[i, 0, 2] * wb[i, 2]
+    w1y = Rm[i, 1, 0] * wb[i, 0] + Rm[i, 1, 1] * wb[i, 1] + Rm[i, 1, 2] * wb[i, 2]
+    w1z = Rm[i, 2, 0] * wb[i, 0] + Rm[i, 2, 1] * wb[i, 1] + Rm[i, 2, 2] * wb[i, 2]
+    u1x = v[i, 0] + w1y * l1z - w1z * l1y
+    u1y = v[i, 1] + w1z * l1x - w1x * l1z
+    u1z = v[i, 2] + w1x * l1y - w1y * l1x
+    vn = u1x * p[m, 0] + u1y * p[m, 1] + u1z * p[m, 2]
+    if j >= 0:
+        l2x = g[m, 3]
+        l2y = g[m, 4]
+        l2z = g[m, 5]
+        w2x = Rm[j, 0, 0] * wb[j, 0] + Rm[j, 0, 1] * wb[j, 1] + Rm[j, 0, 2] * wb[j, 2]
+        w2y = Rm[j, 1, 0] * wb[j, 0] + Rm[j, 1, 1] * wb[j, 1] + Rm[j, 1, 2] * wb[j, 2]
+        w2z = Rm[j, 2, 0] * wb[j, 0] + Rm[j, 2, 1] * wb[j, 1] + Rm[j, 2, 2] * wb[j, 2]
+        u2x = v[j, 0] + w2y * l2z - w2z * l2y
+        u2y = v[j, 1] + w2z * l2x - w2x * l2z
+        u2z = v[j, 2] + w2x * l2y - w2y * l2x
+        vn -= u2x * p[m, 0] + u2y * p[m, 1] + u2z * p[m, 2]
+    if vn <= vtol:
+        return 0.0
+    den = g[m, 12]
     if not den > 0.0:
         return 0.0  # both bodies fixed
     imp = (1.0 + k_rest) * vn / den  # Eq. (19) / Eq. (21), divided through by m_1
     f = imp * im[i]
     for k in range(3):
-        v[i, k] -= f * p[k]  # Eq. (16)
-    wb[i, 0] -= imp * a10  # Eq. (18)
-    wb[i, 1] -= imp * a11
-    wb[i, 2] -= imp * a12
+        v[i, k] -= f * p[m, k]  # Eq. (16)
+    wb[i, 0] -= imp * g[m, 6]  # Eq. (18)
+    wb[i, 1] -= imp * g[m, 7]
+    wb[i, 2] -= imp * g[m, 8]
     if j >= 0:
         f = imp * im[j]
         for k in range(3):
-            v[j, k] += f * p[k]
-        wb[j, 0] += imp * a20
-        wb[j, 1] += imp * a21
-        wb[j, 2] += imp * a22
+            v[j, k] += f * p[m, k]
+        wb[j, 0] += imp * g[m, 9]
+        wb[j, 1] += imp * g[m, 10]
+        wb[j, 2] += imp * g[m, 11]
     return imp
 
 
 @njit(cache=True)
-def _approach(i, j, sh, c, p, x, v, wb, Rm):
-    """(u_1 - u_2) . p with u = v + omega x l the contact-point velocities (u_2 = 0 for j < 0)."""
-    vn = 0.0
-    for b in range(2):
-        k = i if b == 0 else j
-        if k < 0:
-            break
-        sg = 1.0 if b == 0 else -1.0
-        lx = c[0] - x[k, 0]
-        ly = c[1] - x[k, 1]
-        lz = c[2] - x[k, 2]
-        if b == 1:
-            lx -= sh[0]
-            ly -= sh[1]
-            lz -= sh[2]
-        wx = Rm[k, 0, 0] * wb[k, 0] + Rm[k, 0, 1] * wb[k, 1] + Rm[k, 0, 2] * wb[k, 2]
-        wy = Rm[k, 1, 0] * wb[k, 0] + Rm[k, 1, 1] * wb[k, 1] + Rm[k, 1, 2] * wb[k, 2]
-        wz = Rm[k, 2, 0] * wb[k, 0] + Rm[k, 2, 1] * wb[k, 1] + Rm[k, 2, 2] * wb[k, 2]
-        ux = v[k, 0] + wy * lz - wz * ly
-        uy = v[k, 1] + wz * lx - wx * lz
-        uz = v[k, 2] + wx * ly - wy * lx
-        vn += sg * (ux * p[0] + uy * p[1] + uz * p[2])
-    return vn
+def _impulse(i, j, sx, sy, sz, c, p, x, v, wb, Rm, im, iinv, k_rest, vtol):
+    """Apply Eqs. (16)-(19) (j >= 0) or Eq. (21) (j < 0: wall) to one contact (point c, normal
+    p, body 2 at x_j + s) if it approaches: ``_impulse_terms`` then ``_impulse_apply``. Returns
+    the impulse I (0 if none)."""
+    g = np.empty((1, _NG))
+    _impulse_terms(i, j, sx, sy, sz, c, p, x, Rm, im, iinv, g, 0)
+    pr = np.empty((1, 3))
+    for k in range(3):
+        pr[0, k] = p[k]
+    return _impulse_apply(i, j, 0, pr, g, v, wb, Rm, im, k_rest, vtol)
+
+
+@njit(cache=True, inline="always")
+def _normal_speed(i, j, m, sh, c, p, x, v, wb, Rm):
+    """(u_1 - u_2) . p at contact row m (point c[m], normal p[m], body 2 at x_j + sh[m]), with
+    u = v + omega x l the contact-point velocities (u_2 = 0 for j < 0). Inlined, by row: see
+    ``_impulse_apply``."""
+    lx = c[m, 0] - x[i, 0]
+    ly = c[m, 1] - x[i, 1]
+    lz = c[m, 2] - x[i, 2]
+    wx = Rm[i, 0, 0] * wb[i, 0] + Rm[i, 0, 1] * wb[i, 1] + Rm[i, 0, 2] * wb[i, 2]
+    wy = Rm[i, 1, 0] * wb[i, 0] + Rm[i, 1, 1] * wb[i, 1] + Rm[i, 1, 2] * wb[i, 2]
+    wz = Rm[i, 2, 0] * wb[i, 0] + Rm[i, 2, 1] * wb[i, 1] + Rm[i, 2, 2] * wb[i, 2]
+    ux = v[i, 0] + wy * lz - wz * ly
+    uy = v[i, 1] + wz * lx - wx * lz
+    uz = v[i, 2] + wx * ly - wy * lx
+    vn = ux * p[m, 0] + uy * p[m, 1] + uz * p[m, 2]
+    if j < 0:
+        return vn
+    lx = c[m, 0] - x[j, 0] - sh[m, 0]
+    ly = c[m, 1] - x[j, 1] - sh[m, 1]
+    lz = c[m, 2] - x[j, 2] - sh[m, 2]
+    wx = Rm[j, 0, 0] * wb[j, 0] + Rm[j, 0, 1] * wb[j, 1] + Rm[j, 0, 2] * wb[j, 2]
+    wy = Rm[j, 1, 0] * wb[j, 0] + Rm[j, 1, 1] * wb[j, 1] + Rm[j, 1, 2] * wb[j, 2]
+    wz = Rm[j, 2, 0] * wb[j, 0] + Rm[j, 2, 1] * wb[j, 1] + Rm[j, 2, 2] * wb[j, 2]
+    ux = v[j, 0] + wy * lz - wz * ly
+    uy = v[j, 1] + wz * lx - wx * lz
+    uz = v[j, 2] + wx * ly - wy * lx
+    return vn - (ux * p[m, 0] + uy * p[m, 1] + uz * p[m, 2])
 
 
 @njit(cache=True)
@@ -622,7 +665,7 @@ def _activate_one(m, pi, pj, ps, cg, cn, cc, wi, wg, wn, wc, npair, kind, h, x, 
     if m < npair:
         i = pi[m]
         j = pj[m]
-        if cg[m] <= contact_gap and _approach(i, j, ps[m], cc[m], cn[m], x, v, wb, Rm) > vtol:
+        if cg[m] <= contact_gap and _normal_speed(i, j, m, ps, cc, cn, x, v, wb, Rm) > vtol:
             on_p[m] = True
             for k in range(3):
                 gp_n[m, k] = cn[m, k]
@@ -636,7 +679,7 @@ def _activate_one(m, pi, pj, ps, cg, cn, cc, wi, wg, wn, wc, npair, kind, h, x, 
     else:
         m -= npair
         i = wi[m]
-        if wg[m] <= contact_gap and _approach(i, -1, wn[m], wc[m], wn[m], x, v, wb, Rm) > vtol:
+        if wg[m] <= contact_gap and _normal_speed(i, -1, m, wn, wc, wn, x, v, wb, Rm) > vtol:
             on_w[m] = True
             for k in range(3):
                 gw_n[m, k] = wn[m, k]
@@ -769,6 +812,13 @@ def _resolve_kernel(
         todo = np.empty(nnear, dtype=np.int64)
         scr = _test_scratch()
         act = np.empty(nnear, dtype=np.int64)
+        gt_p = np.empty((npair, _NG))  # impulse terms (_impulse_terms) of the active contacts
+        gt_w = np.empty((nwall, _NG))
+        ev1 = np.full(npair + nwall, -1, dtype=np.int64)  # ver of the bodies at a contact's last impulse evaluation
+        ev2 = np.full(npair + nwall, -1, dtype=np.int64)
+        # contact geometry set this round (terms to compute); active with its present geometry
+        fresh = np.zeros(npair + nwall, dtype=np.bool_)
+        touch = np.zeros(npair + nwall, dtype=np.bool_)
         for rnd in range(max_sweeps):
             ntodo = 0
             for t in range(nnear):
@@ -784,11 +834,62 @@ def _resolve_kernel(
                 _activate_par(todo, ntodo, pi, pj, ps, cg, cn, cc, wi, wg, wn, wc, npair, kind, h, x, v, wb, Rm, sweep,
                               dt, contact_gap, spec, vtol, manifold_tol, dcode, Rp, cx, cy, lo, hi, on_p, gp_n, gp_c, on_w,
                               gw_n, gw_c)
+                for t in range(ntodo):
+                    fresh[todo[t]] = True
+                    touch[todo[t]] = False
             else:
                 for t in range(ntodo):
-                    _activate_one(todo[t], pi, pj, ps, cg, cn, cc, wi, wg, wn, wc, npair, kind, h, x, v, wb, Rm, sweep,
+                    m = todo[t]
+                    # _activate_one's common outcomes, inline: a touching contact that approaches,
+                    # and a contact too far to close within the step
+                    if m < npair:
+                        i = pi[m]
+                        j = pj[m]
+                        if cg[m] <= contact_gap and _normal_speed(i, j, m, ps, cc, cn, x, v, wb, Rm) > vtol:
+                            if not (on_p[m] and touch[m]):  # else it has this geometry and its terms already
+                                on_p[m] = True
+                                for k in range(3):
+                                    gp_n[m, k] = cn[m, k]
+                                    gp_c[m, k] = cc[m, k]
+                                touch[m] = True
+                                fresh[m] = True
+                            continue
+                        if not (spec and cg[m] - (sweep[i] + sweep[j]) * dt <= _SWEEP_SLACK):
+                            continue
+                    else:
+                        mw = m - npair
+                        i = wi[mw]
+                        if wg[mw] <= contact_gap and _normal_speed(i, -1, mw, wn, wc, wn, x, v, wb, Rm) > vtol:
+                            if not (on_w[mw] and touch[m]):
+                                on_w[mw] = True
+                                for k in range(3):
+                                    gw_n[mw, k] = wn[mw, k]
+                                    gw_c[mw, k] = wc[mw, k]
+                                touch[m] = True
+                                fresh[m] = True
+                            continue
+                        if not (spec and wg[mw] - sweep[i] * dt <= _SWEEP_SLACK):
+                            continue
+                    _activate_one(m, pi, pj, ps, cg, cn, cc, wi, wg, wn, wc, npair, kind, h, x, v, wb, Rm, sweep,
                                   dt, contact_gap, spec, vtol, manifold_tol, dcode, Rp, cx, cy, lo, hi, on_p, gp_n, gp_c,
                                   on_w, gw_n, gw_c, scr)
+                    fresh[m] = True
+                    touch[m] = False
+            # impulse terms of the contacts whose geometry this round may have set
+            for t in range(ntodo):
+                m = todo[t]
+                if not fresh[m]:
+                    continue
+                fresh[m] = False
+                if m < npair:
+                    if on_p[m]:
+                        _impulse_terms(pi[m], pj[m], ps[m, 0], ps[m, 1], ps[m, 2], gp_c[m], gp_n[m], x, Rm, im, iinv,
+                                       gt_p, m)
+                        ev1[m] = -1
+                elif on_w[m - npair]:
+                    mw = m - npair
+                    _impulse_terms(wi[mw], -1, 0.0, 0.0, 0.0, gw_c[mw], gw_n[mw], x, Rm, im, iinv, gt_w, mw)
+                    ev1[m] = -1
             nact = 0
             for t in range(nnear):
                 m = near[t]
@@ -800,20 +901,28 @@ def _resolve_kernel(
                 applied = 0
                 for t in range(nact):
                     m = act[t]
+                    # a contact whose bodies have the velocities of its last evaluation gives
+                    # what it gave then: no impulse (after one it recedes, -k times as fast)
                     if m < npair:
                         i = pi[m]
                         j = pj[m]
-                        if _impulse(i, j, ps[m, 0], ps[m, 1], ps[m, 2], gp_c[m], gp_n[m], x, v, wb, Rm, im, iinv, k_rest,
-                                    vtol) > 0.0:
+                        if ver[i] == ev1[m] and ver[j] == ev2[m]:
+                            continue
+                        if _impulse_apply(i, j, m, gp_n, gt_p, v, wb, Rm, im, k_rest, vtol) > 0.0:
                             applied += 1
                             ver[i] += 1
                             ver[j] += 1
+                        ev1[m] = ver[i]
+                        ev2[m] = ver[j]
                     else:
-                        m -= npair
-                        i = wi[m]
-                        if _impulse(i, -1, 0.0, 0.0, 0.0, gw_c[m], gw_n[m], x, v, wb, Rm, im, iinv, k_rest, vtol) > 0.0:
+                        mw = m - npair
+                        i = wi[mw]
+                        if ver[i] == ev1[m]:
+                            continue
+                        if _impulse_apply(i, -1, mw, gw_n, gt_w, v, wb, Rm, im, k_rest, vtol) > 0.0:
                             applied += 1
                             ver[i] += 1
+                        ev1[m] = ver[i]
                 sweeps += 1
                 applied_round += applied
                 if applied == 0:

@@ -82,7 +82,7 @@ _FAR = 2
 # small vector helpers
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _dot(a, b):
     return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
 
@@ -97,7 +97,7 @@ def _cross_into(a, b, out):
     out[2] = z
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _support3(kind, h, x, R, core, d0, d1, d2):
     """Lab-frame support point of a body along the lab direction (d0, d1, d2), as a tuple.
     ``shapes.support_body`` written out on scalars (same operations, so the same bits; a test
@@ -143,10 +143,11 @@ def _support_lab(kind, h, x, R, core, d, out):
 
 # ------------------------------------------------------------------------------------------------
 # GJK: closest point of a simplex to the origin (Ericson 5.1), reducing the simplex in place.
-# Nothing here allocates: these run ~20 times per pair and per narrow-phase call.
+# Nothing here allocates: these run ~20 times per pair and per narrow-phase call, and they are
+# inlined (numba IR) into GJK, since a call with array arguments costs more than their arithmetic.
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _keep(W, WA, WB, lam, mask):
     """Compact the rows whose bit is set in ``mask`` to the front, in ascending order (so no row
     is overwritten before it is moved). Returns their number."""
@@ -163,7 +164,7 @@ def _keep(W, WA, WB, lam, mask):
     return r
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _closest_triangle(a, b, c):
     """Barycentric weights (tuple of 3) of the point of triangle abc closest to the origin."""
     ab0 = b[0] - a[0]
@@ -233,7 +234,7 @@ def _closest_triangle(a, b, c):
     return 1.0 - v - w, v, w
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _simplex_closest(W, WA, WB, n, lam, v):
     """Closest point ``v`` of the simplex W[0..n-1] to the origin; reduces the simplex to the
     vertices with non-zero weight (stored first, weights in ``lam``). Returns the new size, or 4
@@ -691,14 +692,13 @@ def _epa(k1, h1, x1, R1, k2, h2, x2, R2, scale, W, WA, WB, n, nrm, pa, pb):
 
 
 @njit(cache=True)
-def _feature(kind, h, x, R, n, tol, out):
+def _feature(kind, h, x, R, n, tol, out, pb):
     """Lab points (rows of ``out``) of the face/edge/vertex of the body that is extreme along the
     unit lab direction ``n``, within ``tol`` of the extreme. Polygons are returned in cyclic
-    order. Returns the number of points."""
+    order. Returns the number of points. ``pb``: scratch, (DISC_SIDES, 3)."""
     d0 = R[0, 0] * n[0] + R[1, 0] * n[1] + R[2, 0] * n[2]
     d1 = R[0, 1] * n[0] + R[1, 1] * n[1] + R[2, 1] * n[2]
     d2 = R[0, 2] * n[0] + R[1, 2] * n[1] + R[2, 2] * n[2]
-    pb = np.empty((DISC_SIDES, 3))
     m = 0
     if kind == SPHERE:
         pb[0, 0], pb[0, 1], pb[0, 2] = h[0] * d0, h[0] * d1, h[0] * d2
@@ -806,10 +806,10 @@ def _in_poly(px, py, P, m, tol):
 
 
 @njit(cache=True)
-def _patch_centroid(P1, m1, P2, m2, tol, out):
+def _patch_centroid(P1, m1, P2, m2, tol, out, pts):
     """In-plane centroid of the intersection of two convex 2-D features (points, segments or
-    polygons). Returns False if they do not meet (within tol)."""
-    pts = np.empty((2 * DISC_SIDES + 4 * DISC_SIDES * DISC_SIDES // 4 + 8, 2))
+    polygons). Returns False if they do not meet (within tol). ``pts``: scratch,
+    (_PATCH_POINTS, 2)."""
     cap = pts.shape[0]
     k = 0
     for r in range(m1):
@@ -900,9 +900,12 @@ def _plane_basis(n, t1, t2):
         ax = 1
     if abs(n[2]) < abs(n[ax]):
         ax = 2
-    u = np.zeros(3)
-    u[ax] = 1.0
-    _cross_into(n, u, t1)
+    u0 = 1.0 if ax == 0 else 0.0
+    u1 = 1.0 if ax == 1 else 0.0
+    u2 = 1.0 if ax == 2 else 0.0
+    t1[0] = n[1] * u2 - n[2] * u1  # n x e_ax
+    t1[1] = n[2] * u0 - n[0] * u2
+    t1[2] = n[0] * u1 - n[1] * u0
     l1 = math.sqrt(_dot(t1, t1))
     for k in range(3):
         t1[k] /= l1
@@ -931,34 +934,41 @@ def _to_plane(pts3, m, base, t1, t2, P):
 
 
 @njit(cache=True)
-def _manifold_point(k1, h1, x1, R1, k2, h2, x2, R2, nrm, base, tol, out_c):
+def _manifold_point(k1, h1, x1, R1, k2, h2, x2, R2, nrm, base, tol, out_c, ms):
     """Centroid of the contact patch (module docstring); ``base`` is the witness midpoint and
-    fixes the coordinate along the normal. Leaves out_c = base if the features do not meet."""
-    f1 = np.empty((DISC_SIDES, 3))
-    f2 = np.empty((DISC_SIDES, 3))
-    m1 = _feature(k1, h1, x1, R1, nrm, tol, f1)
-    mneg = np.empty(3)
+    fixes the coordinate along the normal. Leaves out_c = base if the features do not meet.
+    ``ms``: scratch of _MANIFOLD_SCRATCH (it runs for every touching pair and step: no
+    allocations)."""
+    d3 = DISC_SIDES * 3
+    d2 = DISC_SIDES * 2
+    f1 = ms[0:d3].reshape((DISC_SIDES, 3))
+    f2 = ms[d3:2 * d3].reshape((DISC_SIDES, 3))
+    pb = ms[2 * d3:3 * d3].reshape((DISC_SIDES, 3))
+    P1 = ms[3 * d3:3 * d3 + d2].reshape((DISC_SIDES, 2))
+    P2 = ms[3 * d3 + d2:3 * d3 + 2 * d2].reshape((DISC_SIDES, 2))
+    o = 3 * d3 + 2 * d2
+    mneg = ms[o:o + 3]
+    t1 = ms[o + 3:o + 6]
+    t2 = ms[o + 6:o + 9]
+    uv = ms[o + 9:o + 11]
+    pts = ms[o + 11:o + 11 + 2 * _PATCH_POINTS].reshape((_PATCH_POINTS, 2))
+    m1 = _feature(k1, h1, x1, R1, nrm, tol, f1, pb)
     for k in range(3):
         mneg[k] = -nrm[k]
-    m2 = _feature(k2, h2, x2, R2, mneg, tol, f2)
+    m2 = _feature(k2, h2, x2, R2, mneg, tol, f2, pb)
     for k in range(3):
         out_c[k] = base[k]
     if m1 == 1 and m2 == 1:
         return
-    t1 = np.empty(3)
-    t2 = np.empty(3)
     _plane_basis(nrm, t1, t2)
-    P1 = np.empty((DISC_SIDES, 2))
-    P2 = np.empty((DISC_SIDES, 2))
     _to_plane(f1, m1, base, t1, t2, P1)
     _to_plane(f2, m2, base, t1, t2, P2)
-    uv = np.empty(2)
     if m1 == 1:
         uv[0], uv[1] = P1[0, 0], P1[0, 1]
     elif m2 == 1:
         uv[0], uv[1] = P2[0, 0], P2[0, 1]
     else:
-        if not _patch_centroid(P1, m1, P2, m2, tol, uv):
+        if not _patch_centroid(P1, m1, P2, m2, tol, uv, pts):
             return
     for k in range(3):
         out_c[k] = base[k] + uv[0] * t1[k] + uv[1] * t2[k]
@@ -968,13 +978,16 @@ def _manifold_point(k1, h1, x1, R1, k2, h2, x2, R2, nrm, base, tol, out_c):
 # narrow phase, public kernel
 
 
-SCRATCH_SIZE = 52
+_PATCH_POINTS = 2 * DISC_SIDES + 4 * DISC_SIDES * DISC_SIDES // 4 + 8  # vertices in + edge crossings
+_MANIFOLD_SCRATCH = 3 * 3 * DISC_SIDES + 2 * 2 * DISC_SIDES + 11 + 2 * _PATCH_POINTS
+SCRATCH_SIZE = 52 + _MANIFOLD_SCRATCH
 
 
 @njit(cache=True)
 def new_scratch():
-    """Scratch memory of ``body_contact_ws`` (GJK simplex and witness points). One per thread:
-    the narrow phase runs ~10^3 times per step and must not allocate."""
+    """Scratch memory of ``body_contact_ws`` (GJK simplex, witness points, contact-patch
+    features). One per thread: the narrow phase runs ~10^3 times per step and must not
+    allocate."""
     return np.empty(SCRATCH_SIZE)
 
 
@@ -1076,7 +1089,7 @@ def body_contact_ws(k1, h1, x1, R1, k2, h2, x2, R2, max_gap, manifold_tol, nrm, 
         for k in range(3):
             c[k] = base[k]
     else:
-        _manifold_point(k1, h1, x1, R1, k2, h2, x2, R2, nrm, base, manifold_tol, c)
+        _manifold_point(k1, h1, x1, R1, k2, h2, x2, R2, nrm, base, manifold_tol, c, ws[52:])
     return gap
 
 
@@ -1226,7 +1239,7 @@ def plane_wall_contact(kind, h, x, R, axis, coord, side, manifold_tol, nrm, c):
         nrm[k] = 0.0
     nrm[axis] = side
     f = np.empty((DISC_SIDES, 3))
-    m = _feature(kind, h, x, R, nrm, manifold_tol, f)
+    m = _feature(kind, h, x, R, nrm, manifold_tol, f, np.empty((DISC_SIDES, 3)))
     for k in range(3):
         c[k] = 0.0
         for r in range(m):
