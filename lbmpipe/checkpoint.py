@@ -118,6 +118,17 @@ def restore(sim, arrays: dict[str, np.ndarray], meta: dict) -> None:
     if set(meta) != set(objs):
         raise CheckpointError(f"the checkpoint's simulation has other parts ({sorted(set(meta) ^ set(objs))}) than "
                               "this one")
+    # A checkpoint of another lbmpipe version can name other arrays for the same state (e.g. the
+    # particle link lists changed layout): restoring the common part would leave the rest as built
+    # from the scene and silently inconsistent, so the sets of arrays must match.
+    current = set(capture(sim)[0])
+    missing = sorted(current - set(arrays))
+    unknown = sorted(k for k in arrays if not hasattr(objs[k.split("/", 1)[0]], k.split("/", 1)[1]))
+    if missing or unknown:
+        raise CheckpointError(f"the checkpoint was written by another version of lbmpipe (it lacks {missing[:4]}"
+                              f"{' ...' if len(missing) > 4 else ''}, and holds {unknown[:4]}"
+                              f"{' ...' if len(unknown) > 4 else ''}, which this version does not have); "
+                              "delete it to start afresh")
     for key, saved in arrays.items():
         prefix, name = key.split("/", 1)
         obj = objs[prefix]

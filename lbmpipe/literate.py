@@ -128,6 +128,14 @@ DECISIONS: list[tuple[str, str]] = [
     ("Unreachable concentrations", "A packing that cannot reach its target is reported as not packable "
                                    "with the concentration it reached; a different concentration is never "
                                    "run silently."),
+    ("Films thinner than one spacing", "Where a particle nearly touches the wall or another particle, the "
+                                       "fluid between them is a film of single nodes with one or two fluid "
+                                       "links; the moving bounce-back (Eq. (8)) behind a receding surface "
+                                       "drains it faster than those links refill it, and the densest Re 26 "
+                                       "cases diverged. The sweep holds such nodes at the density "
+                                       "`numerics.density_floor` (0.5) by adding mass at zero momentum; each "
+                                       "summary and the stability table report the mass added "
+                                       "(`lbmpipe.effects.StreamCollide`)."),
     ("Experimental data", "The values of Zitoun et al. are not in our text and are never invented; a figure "
                           "shows them only from a data file whose source is stated."),
 ]
