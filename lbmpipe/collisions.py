@@ -48,10 +48,16 @@ When is a contact treated (``CollisionParams``):
 Overlap control: after the impulses, overlaps are removed by projecting positions along the
 normal, split by inverse mass (``x_1 -= d p m_2/(m_1+m_2)``, ``x_2 += d p m_1/(m_1+m_2)``, which
 keeps the centre of mass; against a wall the particle moves by ``d``), Gauss-Seidel over all
-contacts, repeated until every overlap is at most ``overlap_tol``. Velocities and orientations are
-not touched by the projection. Bound: when ``resolve_collisions`` returns, every pair and wall
-overlap is ``<= overlap_tol`` (default 0.01 lattice spacing) unless the projection ran out of
-iterations (``max_projection_iters``, only in a jammed configuration); the value reached is
+contacts, repeated until every overlap is at most ``overlap_tol``. If that has not happened after
+``max_projection_iters`` sweeps, the configuration is jammed in a way translations cannot open
+(a cylinder wedged across the pipe by its neighbours: pushing it off one wall pushes it into the
+other), and a second projection turns the bodies as well: each correction is split over
+translation and rotation by the generalized inverse masses of the contact's deepest point, the
+position-level form of Eqs. (16)-(19) (``_project``); the centre of mass stays. Steps that do not
+jam never reach it and are unchanged by it; ``stats["rotation_projections"]`` counts the calls
+that did. Velocities and angular velocities are not touched by either projection. Bound: when
+``resolve_collisions`` returns, every pair and wall overlap is ``<= overlap_tol`` (default 0.01
+lattice spacing) unless both projections ran out of iterations; the value reached is
 ``stats["max_overlap_after"]`` either way. Within the following step, overlaps can only come
 from motion the free-motion prediction does not see (the force and torque kicks of that step,
 changes of the rotation axis of non-symmetric bodies, contacts beyond the sweep caps); they are
@@ -76,7 +82,7 @@ from .effects import Effect
 from .contact import (SCRATCH_SIZE, _support3, body_contact_ws, bounding_radii, candidate_pairs, new_scratch,
                       pipe_wall_contact, plane_wall_contact)
 from .shapes import CYLINDER, SPHERE, bounding_radius
-from .rigid import Bodies, quat_to_matrices
+from .rigid import Bodies, _qmul, quat_to_matrix, quat_to_matrices
 
 PIPE = 0
 BOX = 1
@@ -168,8 +174,8 @@ class CollisionParams:
 
 
 # stats layout
-_S_CAND, _S_PAIR, _S_WALL, _S_IMP, _S_OVB, _S_OVA, _S_SWEEP, _S_PROJ, _S_UNRES, _S_DISP = range(10)
-_NSTATS = 10
+_S_CAND, _S_PAIR, _S_WALL, _S_IMP, _S_OVB, _S_OVA, _S_SWEEP, _S_PROJ, _S_UNRES, _S_DISP, _S_ROT = range(11)
+_NSTATS = 11
 
 
 _NG = 13  # impulse terms of a contact: l_1 (3), l_2 (3), a_1 (3), a_2 (3), denominator of Eq. (19)
@@ -707,6 +713,167 @@ def _activate_par(todo, ntodo, pi, pj, ps, cg, cn, cc, wi, wg, wn, wc, npair, ki
 
 
 @njit(cache=True)
+def _turn(i, lam, g, col, q, Rm):
+    """Rotate body i by the body-frame rotation vector ``lam * g[col:col+3]`` (q <- q (x) dq,
+    q rotating body -> lab) and refresh its matrix. Returns the angle."""
+    fx = lam * g[0, col]
+    fy = lam * g[0, col + 1]
+    fz = lam * g[0, col + 2]
+    ang = math.sqrt(fx * fx + fy * fy + fz * fz)
+    if ang == 0.0:
+        return 0.0
+    s = math.sin(0.5 * ang) / ang
+    r = _qmul(q[i, 0], q[i, 1], q[i, 2], q[i, 3], math.cos(0.5 * ang), s * fx, s * fy, s * fz)
+    nq = math.sqrt(r[0] * r[0] + r[1] * r[1] + r[2] * r[2] + r[3] * r[3])
+    for k in range(4):
+        q[i, k] = r[k] / nq
+    Rm[i] = quat_to_matrix(q[i])
+    return ang
+
+
+@njit(cache=True)
+def _project(rot, max_proj, overlap_tol, kind, h, x, q, Rm, im, iinv, rb, pi, pj, ps, cg, cn, cc, wi, wg, wn, wc,
+             d1, d2, dw, disp, dcode, Rp, cx, cy, lo, hi, margin, manifold_tol, ws, nrm, c, x2):
+    """Gauss-Seidel removal of the overlaps deeper than ``overlap_tol``; returns the iterations.
+
+    ``rot = False``: each contact moves its bodies apart along the normal by the depth, split by
+    inverse mass (the centre of mass stays). ``rot = True``: the same correction spread over
+    translation and rotation by the generalized inverse masses of the contact point, the
+    position-level form of Eqs. (16)-(19): with ``lam = depth / (1/m_1 + 1/m_2 + t_1 + t_2)``
+    body 1 moves by ``-lam n / m_1`` and turns by ``-lam J_1^-1 (l_1 x n)`` (body 2: ``+``), which
+    closes the gap to first order and keeps the centre of mass; walls are infinitely heavy.
+    ``disp`` bounds how far each body's surface has moved (shift plus angle times bounding
+    radius): a stored gap is re-measured only when that bound says it may have closed."""
+    npair = pi.shape[0]
+    nwall = wi.shape[0]
+    if rot:
+        # the deepest point, not the centroid of the deepest patch: a body wedged between two
+        # walls has a patch at each end, and their centroid (at its middle) has no lever arm
+        manifold_tol = 0.0
+    g = np.empty((1, _NG))
+    p = np.empty(3)
+    it_used = 0
+    for it in range(max_proj):
+        moved = False
+        for m in range(npair):
+            i = pi[m]
+            j = pj[m]
+            bound = cg[m] - (disp[i] - d1[m]) - (disp[j] - d2[m])
+            if bound >= -overlap_tol:
+                continue
+            if disp[i] != d1[m] or disp[j] != d2[m]:
+                for k in range(3):
+                    x2[k] = x[j, k] + ps[m, k]
+                cg[m] = body_contact_ws(kind[i], h[i], x[i], Rm[i], kind[j], h[j], x2, Rm[j], margin, manifold_tol, nrm,
+                                        c, ws, True)
+                for k in range(3):
+                    cn[m, k] = nrm[k]
+                    cc[m, k] = c[k]
+                d1[m] = disp[i]
+                d2[m] = disp[j]
+            if cg[m] >= -overlap_tol:
+                continue
+            wsum = im[i] + im[j]
+            if wsum <= 0.0:
+                continue  # two fixed bodies: nothing can move
+            dep = -cg[m]
+            if rot:
+                for k in range(3):
+                    p[k] = cn[m, k]
+                _impulse_terms(i, j, ps[m, 0], ps[m, 1], ps[m, 2], cc[m], p, x, Rm, im, iinv, g, 0)
+                lam = dep / g[0, 12]
+                f1 = lam * im[i]
+                f2 = lam * im[j]
+                disp[i] += f1 + _turn(i, -lam, g, 6, q, Rm) * rb[i]
+                disp[j] += f2 + _turn(j, lam, g, 9, q, Rm) * rb[j]
+            else:
+                f1 = dep * im[i] / wsum
+                f2 = dep * im[j] / wsum
+                disp[i] += f1
+                disp[j] += f2
+            for k in range(3):
+                x[i, k] -= f1 * cn[m, k]
+                x[j, k] += f2 * cn[m, k]
+            if rot:
+                # closed to first order only: measure again
+                for k in range(3):
+                    x2[k] = x[j, k] + ps[m, k]
+                cg[m] = body_contact_ws(kind[i], h[i], x[i], Rm[i], kind[j], h[j], x2, Rm[j], margin, manifold_tol, nrm,
+                                        c, ws, True)
+                for k in range(3):
+                    cn[m, k] = nrm[k]
+                    cc[m, k] = c[k]
+            else:
+                # the EPA normal is the minimum translation: after it the pair just touches
+                cg[m] = 0.0
+            d1[m] = disp[i]
+            d2[m] = disp[j]
+            moved = True
+        for m in range(nwall):
+            i = wi[m]
+            bound = wg[m] - (disp[i] - dw[m])
+            if bound >= -overlap_tol:
+                continue
+            if disp[i] != dw[m]:
+                wg[m] = _wall_gap(kind[i], h[i], x[i], Rm[i], dcode, Rp, cx, cy, lo, hi, wn[m], manifold_tol, nrm, c)
+                for k in range(3):
+                    wn[m, k] = nrm[k]
+                    wc[m, k] = c[k]
+                dw[m] = disp[i]
+            if wg[m] >= -overlap_tol or im[i] <= 0.0:
+                continue
+            dep = -wg[m]
+            if rot:
+                for k in range(3):
+                    p[k] = wn[m, k]
+                _impulse_terms(i, -1, 0.0, 0.0, 0.0, wc[m], p, x, Rm, im, iinv, g, 0)
+                lam = dep / g[0, 12]
+                f1 = lam * im[i]
+                disp[i] += f1 + _turn(i, -lam, g, 6, q, Rm) * rb[i]
+            else:
+                f1 = dep
+                disp[i] += dep
+            for k in range(3):
+                x[i, k] -= f1 * wn[m, k]
+            # the farthest point need not lie on the normal through the contact point: re-measure
+            wg[m] = _wall_gap(kind[i], h[i], x[i], Rm[i], dcode, Rp, cx, cy, lo, hi, wn[m], manifold_tol, nrm, c)
+            for k in range(3):
+                wn[m, k] = nrm[k]
+                wc[m, k] = c[k]
+            dw[m] = disp[i]
+            moved = True
+        it_used = it + 1
+        if not moved:
+            break
+    return it_used
+
+
+@njit(cache=True)
+def _final_overlap(kind, h, x, Rm, pi, pj, ps, cg, wi, wg, wn, d1, d2, dw, disp, dcode, Rp, cx, cy, lo, hi, margin,
+                   manifold_tol, ws, nrm, c, x2):
+    """Largest overlap left: every stored gap whose displacement bound says it may overlap is
+    re-measured."""
+    ova = 0.0
+    for m in range(pi.shape[0]):
+        i = pi[m]
+        j = pj[m]
+        bound = cg[m] - (disp[i] - d1[m]) - (disp[j] - d2[m])
+        if bound < 0.0:
+            for k in range(3):
+                x2[k] = x[j, k] + ps[m, k]
+            bound = body_contact_ws(kind[i], h[i], x[i], Rm[i], kind[j], h[j], x2, Rm[j], margin, manifold_tol, nrm, c,
+                                    ws, True)
+        ova = max(ova, -bound)
+    for m in range(wi.shape[0]):
+        i = wi[m]
+        bound = wg[m] - (disp[i] - dw[m])
+        if bound < 0.0:
+            bound = _wall_gap(kind[i], h[i], x[i], Rm[i], dcode, Rp, cx, cy, lo, hi, wn[m], manifold_tol, nrm, c)
+        ova = max(ova, -bound)
+    return ova
+
+
+@njit(cache=True)
 def _resolve_kernel(
     kind, h, mass, inertia, x, v, q, wb, fixed,
     dcode, Rp, cx, cy, lo, hi, periodic,
@@ -947,7 +1114,7 @@ def _resolve_kernel(
         stats[_S_SWEEP] = max(stats[_S_SWEEP], sweeps)
         stats[_S_UNRES] += unres
 
-    # ---- overlap projection (positions only, split by inverse mass)
+    # ---- overlap projection: positions, split by inverse mass; orientations too in a jam
     ws = new_scratch()
     nrm = np.empty(3)
     c = np.empty(3)
@@ -956,88 +1123,20 @@ def _resolve_kernel(
     d1 = np.zeros(npair)
     d2 = np.zeros(npair)
     dw = np.zeros(nwall)
-    it_used = 0
-    for it in range(max_proj):
-        moved = False
-        for m in range(npair):
-            i = pi[m]
-            j = pj[m]
-            bound = cg[m] - (disp[i] - d1[m]) - (disp[j] - d2[m])
-            if bound >= -overlap_tol:
-                continue
-            if disp[i] != d1[m] or disp[j] != d2[m]:
-                for k in range(3):
-                    x2[k] = x[j, k] + ps[m, k]
-                cg[m] = body_contact_ws(kind[i], h[i], x[i], Rm[i], kind[j], h[j], x2, Rm[j], margin, manifold_tol, nrm,
-                                        c, ws, True)
-                for k in range(3):
-                    cn[m, k] = nrm[k]
-                    cc[m, k] = c[k]
-                d1[m] = disp[i]
-                d2[m] = disp[j]
-            if cg[m] >= -overlap_tol:
-                continue
-            wsum = im[i] + im[j]
-            if wsum <= 0.0:
-                continue  # two fixed bodies: nothing can move
-            dep = -cg[m]
-            f1 = dep * im[i] / wsum
-            f2 = dep * im[j] / wsum
-            for k in range(3):
-                x[i, k] -= f1 * cn[m, k]
-                x[j, k] += f2 * cn[m, k]
-            disp[i] += f1
-            disp[j] += f2
-            # the EPA normal is the minimum translation: after it the pair just touches
-            cg[m] = 0.0
-            d1[m] = disp[i]
-            d2[m] = disp[j]
-            moved = True
-        for m in range(nwall):
-            i = wi[m]
-            bound = wg[m] - (disp[i] - dw[m])
-            if bound >= -overlap_tol:
-                continue
-            if disp[i] != dw[m]:
-                wg[m] = _wall_gap(kind[i], h[i], x[i], Rm[i], dcode, Rp, cx, cy, lo, hi, wn[m], manifold_tol, nrm, c)
-                for k in range(3):
-                    wn[m, k] = nrm[k]
-                    wc[m, k] = c[k]
-                dw[m] = disp[i]
-            if wg[m] >= -overlap_tol or im[i] <= 0.0:
-                continue
-            dep = -wg[m]
-            for k in range(3):
-                x[i, k] -= dep * wn[m, k]
-            disp[i] += dep
-            # the farthest point need not lie on the normal through the contact point: re-measure
-            wg[m] = _wall_gap(kind[i], h[i], x[i], Rm[i], dcode, Rp, cx, cy, lo, hi, wn[m], manifold_tol, nrm, c)
-            for k in range(3):
-                wn[m, k] = nrm[k]
-                wc[m, k] = c[k]
-            dw[m] = disp[i]
-            moved = True
-        it_used = it + 1
-        if not moved:
-            break
-    # final overlaps: re-measure everything that could be overlapping
-    ova = 0.0
-    for m in range(npair):
-        i = pi[m]
-        j = pj[m]
-        bound = cg[m] - (disp[i] - d1[m]) - (disp[j] - d2[m])
-        if bound < 0.0:
-            for k in range(3):
-                x2[k] = x[j, k] + ps[m, k]
-            bound = body_contact_ws(kind[i], h[i], x[i], Rm[i], kind[j], h[j], x2, Rm[j], margin, manifold_tol, nrm, c,
-                                    ws, True)
-        ova = max(ova, -bound)
-    for m in range(nwall):
-        i = wi[m]
-        bound = wg[m] - (disp[i] - dw[m])
-        if bound < 0.0:
-            bound = _wall_gap(kind[i], h[i], x[i], Rm[i], dcode, Rp, cx, cy, lo, hi, wn[m], manifold_tol, nrm, c)
-        ova = max(ova, -bound)
+    it_used = _project(False, max_proj, overlap_tol, kind, h, x, q, Rm, im, iinv, rb, pi, pj, ps, cg, cn, cc, wi, wg,
+                       wn, wc, d1, d2, dw, disp, dcode, Rp, cx, cy, lo, hi, margin, manifold_tol, ws, nrm, c, x2)
+    ova = _final_overlap(kind, h, x, Rm, pi, pj, ps, cg, wi, wg, wn, d1, d2, dw, disp, dcode, Rp, cx, cy, lo, hi,
+                         margin, manifold_tol, ws, nrm, c, x2)
+    if ova > overlap_tol:
+        # Translations alone cannot open a jam such as a body wedged across the pipe by a
+        # neighbour: only turning it can. Leaving this to a fallback keeps every step that does
+        # not jam exactly as the translation-only projection computes it.
+        it_used += _project(True, max_proj, overlap_tol, kind, h, x, q, Rm, im, iinv, rb, pi, pj, ps, cg, cn, cc, wi,
+                            wg, wn, wc, d1, d2, dw, disp, dcode, Rp, cx, cy, lo, hi, margin, manifold_tol, ws, nrm, c,
+                            x2)
+        ova = _final_overlap(kind, h, x, Rm, pi, pj, ps, cg, wi, wg, wn, d1, d2, dw, disp, dcode, Rp, cx, cy, lo, hi,
+                             margin, manifold_tol, ws, nrm, c, x2)
+        stats[_S_ROT] += 1
     maxdisp = 0.0
     for i in range(n):
         maxdisp = max(maxdisp, disp[i])
@@ -1129,6 +1228,7 @@ def _stats_dict(stats: np.ndarray, passes: int) -> dict:
         "projection_iters": int(stats[_S_PROJ]),
         "unresolved": int(stats[_S_UNRES]),
         "max_displacement": float(stats[_S_DISP]),
+        "rotation_projections": int(stats[_S_ROT]),
         "passes": int(passes),
     }
 
@@ -1150,6 +1250,7 @@ class CollisionEffect(Effect):
                      "collisions: walls only (pairs switched off)" if system.n > 1 else
                      "collisions: walls only (one particle)")
         self.totals = {"calls": 0, "impulses": 0, "pair_contacts": 0, "wall_contacts": 0, "unresolved": 0,
+                       "rotation_projections": 0,
                        "max_overlap_before_lu": 0.0, "max_overlap_after_lu": 0.0}
         self.last: dict = {}
 
@@ -1160,6 +1261,8 @@ class CollisionEffect(Effect):
         t["calls"] += 1
         for k in ("impulses", "pair_contacts", "wall_contacts", "unresolved"):
             t[k] += st[k]
+        # .get: a checkpoint from before the rotating projection has no such total
+        t["rotation_projections"] = t.get("rotation_projections", 0) + st["rotation_projections"]
         t["max_overlap_before_lu"] = max(t["max_overlap_before_lu"], st["max_overlap_before"])
         t["max_overlap_after_lu"] = max(t["max_overlap_after_lu"], st["max_overlap_after"])
         self.last = st

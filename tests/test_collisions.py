@@ -233,6 +233,38 @@ def test_overlap_projection_separates_bodies_and_keeps_the_centre_of_mass():
     np.testing.assert_array_equal(b.v, 0.0)
 
 
+def test_a_cylinder_wedged_across_the_pipe_is_turned_free_where_translation_cannot_free_it():
+    # A rod whose extent across the pipe exceeds the diameter, its axis 60 degrees from the pipe
+    # axis: both ends overlap the wall, so any translation deepens one overlap as it relieves the
+    # other. Only turning it towards the pipe axis frees it (the kind of jam that stopped a
+    # 16x16 mm, 50 % case at the paper level).
+    R = 10.0
+    q0 = quat_from_axis_angle(np.array([0.0, 1.0, 0.0]), math.radians(60.0))
+    b = Bodies.make(CYLINDER, [2.0, 2.0, 11.5], 1.0, [[0.2, 0.0, 20.0]], q=[q0])
+    g0 = contact_pipe(CYLINDER, b.h[0], b.x[0], b.q[0], R)[0]
+    assert g0 < -0.5
+    translation_only = CollisionParams(overlap_tol=1e-3, max_projection_iters=50)
+    c = b.copy()
+    stats = resolve_collisions(c, Domain.pipe(R, 60.0), translation_only, dt=1.0)
+    g1 = contact_pipe(CYLINDER, c.h[0], c.x[0], c.q[0], R)[0]
+    tilt1 = math.degrees(math.acos(abs(quat_to_matrix(c.q[0])[2, 2])))
+    assert stats["rotation_projections"] >= 1
+    assert g1 >= -translation_only.overlap_tol and stats["max_overlap_after"] <= translation_only.overlap_tol
+    assert tilt1 < 60.0 - 1.0  # turned towards the pipe axis
+    assert abs(np.linalg.norm(c.q[0]) - 1.0) < 1e-12
+    np.testing.assert_array_equal(c.v, 0.0)
+    np.testing.assert_array_equal(c.wb, 0.0)
+
+
+def test_the_rotating_projection_is_not_used_where_translation_separates_the_bodies():
+    rng = np.random.default_rng(5)
+    b = Bodies.make(CUBE, [1.0, 1.0, 1.0], 1.0, [[0.0, 0.0, 0.0], [1.7, 0.2, 0.1]], q=random_quaternions(2, rng))
+    q0 = b.q.copy()
+    stats = resolve_collisions(b, FREE, CollisionParams(overlap_tol=1e-3), dt=1.0)
+    assert stats["max_overlap_before"] > 0.1 and stats["rotation_projections"] == 0
+    np.testing.assert_array_equal(b.q, q0)
+
+
 def _dry_run_bodies(n, radius, length, rng):
     # non-overlapping start: random sites of a 6-unit grid inside the pipe
     g = np.arange(-radius + 4.0, radius - 4.0 + 1e-9, 6.0)
