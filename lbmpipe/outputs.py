@@ -69,13 +69,16 @@ def versions() -> dict:
 
 
 def git_commit() -> str | None:
-    """Commit of the source tree the package runs from, with ``-dirty`` if it has changes."""
+    """Commit of the source tree the package runs from, with ``-dirty`` if it has changes. The
+    generated ``results/`` and ``paper/`` do not count: a pipeline that rewrites the committed
+    results is still running the committed code."""
     here = Path(__file__).resolve().parent
     try:
         sha = subprocess.run(["git", "rev-parse", "HEAD"], cwd=here, capture_output=True, text=True, timeout=5)
         if sha.returncode != 0:
             return None
-        dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"], cwd=here,
+        dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no", "--", ":(top)",
+                                ":(top,exclude)results", ":(top,exclude)paper"], cwd=here,
                                capture_output=True, text=True, timeout=5)
         return sha.stdout.strip() + ("-dirty" if dirty.stdout.strip() else "")
     except (OSError, subprocess.SubprocessError):
