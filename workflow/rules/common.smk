@@ -1,6 +1,7 @@
 # Functions the rules use (Snakemake's lint wants them apart from the rules).
 import json
 
+from lbmpipe import stability as lbm_stability
 from lbmpipe import study as lbm_study
 
 

@@ -23,6 +23,9 @@ rule stability_table:
     resources:
         mem_mb=3000,
         runtime=lambda wc: {"smoke": 15, "quick": 40}.get(wc.fidelity, 240),
+    params:
+        # a config edit of the suite's settings reruns it
+        settings=lambda wc: lbm_stability.fidelity_settings(config, wc.fidelity),
     script:
         "../scripts/stability_suite.py"
 
