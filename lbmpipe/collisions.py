@@ -181,6 +181,39 @@ _NSTATS = 11
 _NG = 13  # impulse terms of a contact: l_1 (3), l_2 (3), a_1 (3), a_2 (3), denominator of Eq. (19)
 
 
+@njit(cache=True, inline="always")
+def _body_terms(b, lx, ly, lz, p, Rm, iinv):
+    """Body b's share of Eqs. (18)-(19) for lever arm l (lab) and normal p: a_b = J_b^-1 (l_s x
+    p_s) in the body frame (Eq. (18)) and t_b = ([A_b a_b] x l) . p (Eq. (19))."""
+    ls0 = Rm[b, 0, 0] * lx + Rm[b, 1, 0] * ly + Rm[b, 2, 0] * lz
+    ls1 = Rm[b, 0, 1] * lx + Rm[b, 1, 1] * ly + Rm[b, 2, 1] * lz
+    ls2 = Rm[b, 0, 2] * lx + Rm[b, 1, 2] * ly + Rm[b, 2, 2] * lz
+    ps0 = Rm[b, 0, 0] * p[0] + Rm[b, 1, 0] * p[1] + Rm[b, 2, 0] * p[2]
+    ps1 = Rm[b, 0, 1] * p[0] + Rm[b, 1, 1] * p[1] + Rm[b, 2, 1] * p[2]
+    ps2 = Rm[b, 0, 2] * p[0] + Rm[b, 1, 2] * p[1] + Rm[b, 2, 2] * p[2]
+    a0 = iinv[b, 0] * (ls1 * ps2 - ls2 * ps1)
+    a1 = iinv[b, 1] * (ls2 * ps0 - ls0 * ps2)
+    a2 = iinv[b, 2] * (ls0 * ps1 - ls1 * ps0)
+    b0 = Rm[b, 0, 0] * a0 + Rm[b, 0, 1] * a1 + Rm[b, 0, 2] * a2
+    b1 = Rm[b, 1, 0] * a0 + Rm[b, 1, 1] * a1 + Rm[b, 1, 2] * a2
+    b2 = Rm[b, 2, 0] * a0 + Rm[b, 2, 1] * a1 + Rm[b, 2, 2] * a2
+    t = (b1 * lz - b2 * ly) * p[0] + (b2 * lx - b0 * lz) * p[1] + (b0 * ly - b1 * lx) * p[2]
+    return a0, a1, a2, t
+
+
+@njit(cache=True, inline="always")
+def _normal_velocity(b, lx, ly, lz, p, m, v, wb, Rm):
+    """(v_b + omega_b x l) . p[m]: body b's velocity at lever arm l along the normal
+    (omega_lab = A wb)."""
+    wx = Rm[b, 0, 0] * wb[b, 0] + Rm[b, 0, 1] * wb[b, 1] + Rm[b, 0, 2] * wb[b, 2]
+    wy = Rm[b, 1, 0] * wb[b, 0] + Rm[b, 1, 1] * wb[b, 1] + Rm[b, 1, 2] * wb[b, 2]
+    wz = Rm[b, 2, 0] * wb[b, 0] + Rm[b, 2, 1] * wb[b, 1] + Rm[b, 2, 2] * wb[b, 2]
+    ux = v[b, 0] + wy * lz - wz * ly
+    uy = v[b, 1] + wz * lx - wx * lz
+    uz = v[b, 2] + wx * ly - wy * lx
+    return ux * p[m, 0] + uy * p[m, 1] + uz * p[m, 2]
+
+
 @njit(cache=True)
 def _impulse_terms(i, j, sx, sy, sz, c, p, x, Rm, im, iinv, g, m):
     """The parts of Eqs. (18)-(19) that depend only on the contact geometry, into row m of g:
@@ -198,38 +231,13 @@ def _impulse_terms(i, j, sx, sy, sz, c, p, x, Rm, im, iinv, g, m):
         l2x = c[0] - (x[j, 0] + sx)
         l2y = c[1] - (x[j, 1] + sy)
         l2z = c[2] - (x[j, 2] + sz)
-    # a_i = J_i^-1 (l_is x p_is) in the body frame (Eq. (18)); t_i = ([A_i a_i] x l_i) . p (Eq. (19))
-    ls0 = Rm[i, 0, 0] * l1x + Rm[i, 1, 0] * l1y + Rm[i, 2, 0] * l1z
-    ls1 = Rm[i, 0, 1] * l1x + Rm[i, 1, 1] * l1y + Rm[i, 2, 1] * l1z
-    ls2 = Rm[i, 0, 2] * l1x + Rm[i, 1, 2] * l1y + Rm[i, 2, 2] * l1z
-    ps0 = Rm[i, 0, 0] * p[0] + Rm[i, 1, 0] * p[1] + Rm[i, 2, 0] * p[2]
-    ps1 = Rm[i, 0, 1] * p[0] + Rm[i, 1, 1] * p[1] + Rm[i, 2, 1] * p[2]
-    ps2 = Rm[i, 0, 2] * p[0] + Rm[i, 1, 2] * p[1] + Rm[i, 2, 2] * p[2]
-    a10 = iinv[i, 0] * (ls1 * ps2 - ls2 * ps1)
-    a11 = iinv[i, 1] * (ls2 * ps0 - ls0 * ps2)
-    a12 = iinv[i, 2] * (ls0 * ps1 - ls1 * ps0)
-    b0 = Rm[i, 0, 0] * a10 + Rm[i, 0, 1] * a11 + Rm[i, 0, 2] * a12
-    b1 = Rm[i, 1, 0] * a10 + Rm[i, 1, 1] * a11 + Rm[i, 1, 2] * a12
-    b2 = Rm[i, 2, 0] * a10 + Rm[i, 2, 1] * a11 + Rm[i, 2, 2] * a12
-    t1 = (b1 * l1z - b2 * l1y) * p[0] + (b2 * l1x - b0 * l1z) * p[1] + (b0 * l1y - b1 * l1x) * p[2]
+    a10, a11, a12, t1 = _body_terms(i, l1x, l1y, l1z, p, Rm, iinv)
     den = im[i] + t1
     a20 = 0.0
     a21 = 0.0
     a22 = 0.0
     if j >= 0:
-        ls0 = Rm[j, 0, 0] * l2x + Rm[j, 1, 0] * l2y + Rm[j, 2, 0] * l2z
-        ls1 = Rm[j, 0, 1] * l2x + Rm[j, 1, 1] * l2y + Rm[j, 2, 1] * l2z
-        ls2 = Rm[j, 0, 2] * l2x + Rm[j, 1, 2] * l2y + Rm[j, 2, 2] * l2z
-        ps0 = Rm[j, 0, 0] * p[0] + Rm[j, 1, 0] * p[1] + Rm[j, 2, 0] * p[2]
-        ps1 = Rm[j, 0, 1] * p[0] + Rm[j, 1, 1] * p[1] + Rm[j, 2, 1] * p[2]
-        ps2 = Rm[j, 0, 2] * p[0] + Rm[j, 1, 2] * p[1] + Rm[j, 2, 2] * p[2]
-        a20 = iinv[j, 0] * (ls1 * ps2 - ls2 * ps1)
-        a21 = iinv[j, 1] * (ls2 * ps0 - ls0 * ps2)
-        a22 = iinv[j, 2] * (ls0 * ps1 - ls1 * ps0)
-        b0 = Rm[j, 0, 0] * a20 + Rm[j, 0, 1] * a21 + Rm[j, 0, 2] * a22
-        b1 = Rm[j, 1, 0] * a20 + Rm[j, 1, 1] * a21 + Rm[j, 1, 2] * a22
-        b2 = Rm[j, 2, 0] * a20 + Rm[j, 2, 1] * a21 + Rm[j, 2, 2] * a22
-        t2 = (b1 * l2z - b2 * l2y) * p[0] + (b2 * l2x - b0 * l2z) * p[1] + (b0 * l2y - b1 * l2x) * p[2]
+        a20, a21, a22, t2 = _body_terms(j, l2x, l2y, l2z, p, Rm, iinv)
         den += im[j] + t2
     g[m, 0], g[m, 1], g[m, 2] = l1x, l1y, l1z
     g[m, 3], g[m, 4], g[m, 5] = l2x, l2y, l2z
@@ -244,28 +252,10 @@ def _impulse_terms(i, j, sx, sy, sz, c, p, x, Rm, im, iinv, g, m):
 def _impulse_apply(i, j, m, p, g, v, wb, Rm, im, k_rest, vtol):
     """Eqs. (16)-(19) (j >= 0) or Eq. (21) (j < 0: wall) for the contact with normal p[m] and
     terms g[m] (``_impulse_terms``), applied if it approaches. Returns the impulse I (0 if none)."""
-    # contact-point velocities u_i = v_i + omega_i x l_i (omega_lab = A wb)
-    l1x = g[m, 0]
-    l1y = g[m, 1]
-    l1z = g[m, 2]
-    w1x = Rm[i, 0, 0] * wb[i, 0] + Rm[i, 0, 1] * wb[i, 1] + Rm[i, 0, 2] * wb[i, 2]
-    w1y = Rm[i, 1, 0] * wb[i, 0] + Rm[i, 1, 1] * wb[i, 1] + Rm[i, 1, 2] * wb[i, 2]
-    w1z = Rm[i, 2, 0] * wb[i, 0] + Rm[i, 2, 1] * wb[i, 1] + Rm[i, 2, 2] * wb[i, 2]
-    u1x = v[i, 0] + w1y * l1z - w1z * l1y
-    u1y = v[i, 1] + w1z * l1x - w1x * l1z
-    u1z = v[i, 2] + w1x * l1y - w1y * l1x
-    vn = u1x * p[m, 0] + u1y * p[m, 1] + u1z * p[m, 2]
+    # approach speed of the contact points u_i = v_i + omega_i x l_i along the normal
+    vn = _normal_velocity(i, g[m, 0], g[m, 1], g[m, 2], p, m, v, wb, Rm)
     if j >= 0:
-        l2x = g[m, 3]
-        l2y = g[m, 4]
-        l2z = g[m, 5]
-        w2x = Rm[j, 0, 0] * wb[j, 0] + Rm[j, 0, 1] * wb[j, 1] + Rm[j, 0, 2] * wb[j, 2]
-        w2y = Rm[j, 1, 0] * wb[j, 0] + Rm[j, 1, 1] * wb[j, 1] + Rm[j, 1, 2] * wb[j, 2]
-        w2z = Rm[j, 2, 0] * wb[j, 0] + Rm[j, 2, 1] * wb[j, 1] + Rm[j, 2, 2] * wb[j, 2]
-        u2x = v[j, 0] + w2y * l2z - w2z * l2y
-        u2y = v[j, 1] + w2z * l2x - w2x * l2z
-        u2z = v[j, 2] + w2x * l2y - w2y * l2x
-        vn -= u2x * p[m, 0] + u2y * p[m, 1] + u2z * p[m, 2]
+        vn -= _normal_velocity(j, g[m, 3], g[m, 4], g[m, 5], p, m, v, wb, Rm)
     if vn <= vtol:
         return 0.0
     den = g[m, 12]
@@ -306,28 +296,11 @@ def _normal_speed(i, j, m, sh, c, p, x, v, wb, Rm):
     """(u_1 - u_2) . p at contact row m (point c[m], normal p[m], body 2 at x_j + sh[m]), with
     u = v + omega x l the contact-point velocities (u_2 = 0 for j < 0). Inlined, by row: see
     ``_impulse_apply``."""
-    lx = c[m, 0] - x[i, 0]
-    ly = c[m, 1] - x[i, 1]
-    lz = c[m, 2] - x[i, 2]
-    wx = Rm[i, 0, 0] * wb[i, 0] + Rm[i, 0, 1] * wb[i, 1] + Rm[i, 0, 2] * wb[i, 2]
-    wy = Rm[i, 1, 0] * wb[i, 0] + Rm[i, 1, 1] * wb[i, 1] + Rm[i, 1, 2] * wb[i, 2]
-    wz = Rm[i, 2, 0] * wb[i, 0] + Rm[i, 2, 1] * wb[i, 1] + Rm[i, 2, 2] * wb[i, 2]
-    ux = v[i, 0] + wy * lz - wz * ly
-    uy = v[i, 1] + wz * lx - wx * lz
-    uz = v[i, 2] + wx * ly - wy * lx
-    vn = ux * p[m, 0] + uy * p[m, 1] + uz * p[m, 2]
+    vn = _normal_velocity(i, c[m, 0] - x[i, 0], c[m, 1] - x[i, 1], c[m, 2] - x[i, 2], p, m, v, wb, Rm)
     if j < 0:
         return vn
-    lx = c[m, 0] - x[j, 0] - sh[m, 0]
-    ly = c[m, 1] - x[j, 1] - sh[m, 1]
-    lz = c[m, 2] - x[j, 2] - sh[m, 2]
-    wx = Rm[j, 0, 0] * wb[j, 0] + Rm[j, 0, 1] * wb[j, 1] + Rm[j, 0, 2] * wb[j, 2]
-    wy = Rm[j, 1, 0] * wb[j, 0] + Rm[j, 1, 1] * wb[j, 1] + Rm[j, 1, 2] * wb[j, 2]
-    wz = Rm[j, 2, 0] * wb[j, 0] + Rm[j, 2, 1] * wb[j, 1] + Rm[j, 2, 2] * wb[j, 2]
-    ux = v[j, 0] + wy * lz - wz * ly
-    uy = v[j, 1] + wz * lx - wx * lz
-    uz = v[j, 2] + wx * ly - wy * lx
-    return vn - (ux * p[m, 0] + uy * p[m, 1] + uz * p[m, 2])
+    return vn - _normal_velocity(j, c[m, 0] - x[j, 0] - sh[m, 0], c[m, 1] - x[j, 1] - sh[m, 1],
+                                 c[m, 2] - x[j, 2] - sh[m, 2], p, m, v, wb, Rm)
 
 
 @njit(cache=True)
@@ -732,6 +705,29 @@ def _turn(i, lam, g, col, q, Rm):
 
 
 @njit(cache=True)
+def _measure_pair(i, j, m, ps, kind, h, x, Rm, margin, manifold_tol, cg, cn, cc, ws, nrm, c, x2):
+    """Gap, normal and point of pair row m (bodies i, j; j at x_j + ps[m]) as they are now, into
+    cg, cn, cc (x2: scratch)."""
+    for k in range(3):
+        x2[k] = x[j, k] + ps[m, k]
+    cg[m] = body_contact_ws(kind[i], h[i], x[i], Rm[i], kind[j], h[j], x2, Rm[j], margin, manifold_tol, nrm, c, ws,
+                            True)
+    for k in range(3):
+        cn[m, k] = nrm[k]
+        cc[m, k] = c[k]
+
+
+@njit(cache=True)
+def _measure_wall(i, m, kind, h, x, Rm, dcode, Rp, cx, cy, lo, hi, manifold_tol, wg, wn, wc, nrm, c):
+    """Gap, normal and point of wall row m (body i; the wall named by its stored normal) as they
+    are now, into wg, wn, wc."""
+    wg[m] = _wall_gap(kind[i], h[i], x[i], Rm[i], dcode, Rp, cx, cy, lo, hi, wn[m], manifold_tol, nrm, c)
+    for k in range(3):
+        wn[m, k] = nrm[k]
+        wc[m, k] = c[k]
+
+
+@njit(cache=True)
 def _project(rot, max_proj, overlap_tol, kind, h, x, q, Rm, im, iinv, rb, pi, pj, ps, cg, cn, cc, wi, wg, wn, wc,
              d1, d2, dw, disp, dcode, Rp, cx, cy, lo, hi, margin, manifold_tol, ws, nrm, c, x2):
     """Gauss-Seidel removal of the overlaps deeper than ``overlap_tol``; returns the iterations.
@@ -751,7 +747,6 @@ def _project(rot, max_proj, overlap_tol, kind, h, x, q, Rm, im, iinv, rb, pi, pj
         # walls has a patch at each end, and their centroid (at its middle) has no lever arm
         manifold_tol = 0.0
     g = np.empty((1, _NG))
-    p = np.empty(3)
     it_used = 0
     for it in range(max_proj):
         moved = False
@@ -762,13 +757,7 @@ def _project(rot, max_proj, overlap_tol, kind, h, x, q, Rm, im, iinv, rb, pi, pj
             if bound >= -overlap_tol:
                 continue
             if disp[i] != d1[m] or disp[j] != d2[m]:
-                for k in range(3):
-                    x2[k] = x[j, k] + ps[m, k]
-                cg[m] = body_contact_ws(kind[i], h[i], x[i], Rm[i], kind[j], h[j], x2, Rm[j], margin, manifold_tol, nrm,
-                                        c, ws, True)
-                for k in range(3):
-                    cn[m, k] = nrm[k]
-                    cc[m, k] = c[k]
+                _measure_pair(i, j, m, ps, kind, h, x, Rm, margin, manifold_tol, cg, cn, cc, ws, nrm, c, x2)
                 d1[m] = disp[i]
                 d2[m] = disp[j]
             if cg[m] >= -overlap_tol:
@@ -778,9 +767,7 @@ def _project(rot, max_proj, overlap_tol, kind, h, x, q, Rm, im, iinv, rb, pi, pj
                 continue  # two fixed bodies: nothing can move
             dep = -cg[m]
             if rot:
-                for k in range(3):
-                    p[k] = cn[m, k]
-                _impulse_terms(i, j, ps[m, 0], ps[m, 1], ps[m, 2], cc[m], p, x, Rm, im, iinv, g, 0)
+                _impulse_terms(i, j, ps[m, 0], ps[m, 1], ps[m, 2], cc[m], cn[m], x, Rm, im, iinv, g, 0)
                 lam = dep / g[0, 12]
                 f1 = lam * im[i]
                 f2 = lam * im[j]
@@ -796,13 +783,7 @@ def _project(rot, max_proj, overlap_tol, kind, h, x, q, Rm, im, iinv, rb, pi, pj
                 x[j, k] += f2 * cn[m, k]
             if rot:
                 # closed to first order only: measure again
-                for k in range(3):
-                    x2[k] = x[j, k] + ps[m, k]
-                cg[m] = body_contact_ws(kind[i], h[i], x[i], Rm[i], kind[j], h[j], x2, Rm[j], margin, manifold_tol, nrm,
-                                        c, ws, True)
-                for k in range(3):
-                    cn[m, k] = nrm[k]
-                    cc[m, k] = c[k]
+                _measure_pair(i, j, m, ps, kind, h, x, Rm, margin, manifold_tol, cg, cn, cc, ws, nrm, c, x2)
             else:
                 # the EPA normal is the minimum translation: after it the pair just touches
                 cg[m] = 0.0
@@ -815,18 +796,13 @@ def _project(rot, max_proj, overlap_tol, kind, h, x, q, Rm, im, iinv, rb, pi, pj
             if bound >= -overlap_tol:
                 continue
             if disp[i] != dw[m]:
-                wg[m] = _wall_gap(kind[i], h[i], x[i], Rm[i], dcode, Rp, cx, cy, lo, hi, wn[m], manifold_tol, nrm, c)
-                for k in range(3):
-                    wn[m, k] = nrm[k]
-                    wc[m, k] = c[k]
+                _measure_wall(i, m, kind, h, x, Rm, dcode, Rp, cx, cy, lo, hi, manifold_tol, wg, wn, wc, nrm, c)
                 dw[m] = disp[i]
             if wg[m] >= -overlap_tol or im[i] <= 0.0:
                 continue
             dep = -wg[m]
             if rot:
-                for k in range(3):
-                    p[k] = wn[m, k]
-                _impulse_terms(i, -1, 0.0, 0.0, 0.0, wc[m], p, x, Rm, im, iinv, g, 0)
+                _impulse_terms(i, -1, 0.0, 0.0, 0.0, wc[m], wn[m], x, Rm, im, iinv, g, 0)
                 lam = dep / g[0, 12]
                 f1 = lam * im[i]
                 disp[i] += f1 + _turn(i, -lam, g, 6, q, Rm) * rb[i]
@@ -836,10 +812,7 @@ def _project(rot, max_proj, overlap_tol, kind, h, x, q, Rm, im, iinv, rb, pi, pj
             for k in range(3):
                 x[i, k] -= f1 * wn[m, k]
             # the farthest point need not lie on the normal through the contact point: re-measure
-            wg[m] = _wall_gap(kind[i], h[i], x[i], Rm[i], dcode, Rp, cx, cy, lo, hi, wn[m], manifold_tol, nrm, c)
-            for k in range(3):
-                wn[m, k] = nrm[k]
-                wc[m, k] = c[k]
+            _measure_wall(i, m, kind, h, x, Rm, dcode, Rp, cx, cy, lo, hi, manifold_tol, wg, wn, wc, nrm, c)
             dw[m] = disp[i]
             moved = True
         it_used = it + 1
