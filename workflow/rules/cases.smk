@@ -19,8 +19,9 @@ rule pack:
 
 
 rule scene:
-    """Write the validated scene of one case at one fidelity level (``run:``, inside Snakemake: a
-    YAML file is cheaper to write than a Python process to start)."""
+    """Write the validated scene of one case at one fidelity level (``run:``: in a thread of the
+    running Snakemake under profiles/default, as writing a YAML file costs less than starting a
+    process)."""
     localrule: True
     conda:
         "../envs/lbmpipe.yaml"

@@ -10,7 +10,8 @@
 
 rule study_scene:
     """The scene of one study run (a knob setting of the pipe or sphere-drag reference). Runs
-    inside Snakemake (``run:``): writing a YAML file costs less than starting a Python process."""
+    inside Snakemake (``run:``, in a thread under profiles/default): writing a YAML file costs less
+    than starting a process."""
     localrule: True
     conda:
         "../envs/lbmpipe.yaml"
