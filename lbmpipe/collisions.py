@@ -80,7 +80,7 @@ import numpy as np
 from numba import njit, prange
 
 from .effects import Effect
-from .contact import (SCRATCH_SIZE, _support3, body_contact_ws, bounding_radii, candidate_pairs, new_scratch,
+from .contact import (SCRATCH_SIZE, _support3, body_contact_ws, bodies_overlap_ws, bounding_radii, candidate_pairs, new_scratch,
                       pipe_wall_contact, plane_wall_contact)
 from .shapes import CYLINDER, SPHERE, bounding_radius
 from .rigid import Bodies, _qmul, quat_to_matrix, quat_to_matrices
@@ -375,7 +375,7 @@ def _toi_pair(i, j, sh, kind, h, x, v, wb, Rm, dt, sweep, manifold_tol, nrm, c, 
     _advance_one(j, dt, x, v, wb, Rm, x2, R2)
     for k in range(3):
         x2[k] += sh[k]
-    if body_contact_ws(kind[i], h[i], x1, R1, kind[j], h[j], x2, R2, 0.0, manifold_tol, nrm, c, ws, False) >= 0.0:
+    if not bodies_overlap_ws(kind[i], h[i], x1, R1, kind[j], h[j], x2, R2, ws):
         return False
     lo_t = 0.0
     hi_t = dt
@@ -390,7 +390,7 @@ def _toi_pair(i, j, sh, kind, h, x, v, wb, Rm, dt, sweep, manifold_tol, nrm, c, 
         _advance_one(j, mid, x, v, wb, Rm, x2, R2)
         for k in range(3):
             x2[k] += sh[k]
-        if body_contact_ws(kind[i], h[i], x1, R1, kind[j], h[j], x2, R2, 0.0, manifold_tol, nrm, c, ws, False) < 0.0:
+        if bodies_overlap_ws(kind[i], h[i], x1, R1, kind[j], h[j], x2, R2, ws):
             hi_t = mid
         else:
             lo_t = mid

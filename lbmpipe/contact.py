@@ -1093,6 +1093,38 @@ def body_contact_ws(k1, h1, x1, R1, k2, h2, x2, R2, max_gap, manifold_tol, nrm, 
     return gap
 
 
+@njit(cache=True)
+def bodies_overlap_ws(k1, h1, x1, R1, k2, h2, x2, R2, ws):
+    """Do the two bodies overlap (``body_contact_ws`` would give a negative gap)? GJK alone,
+    stopped at the first separating direction, and no EPA: the time-of-impact bisection asks only
+    this. It differs from the sign of ``body_contact_ws`` only for bodies touching with zero
+    overlap volume (EPA's degenerate case, gap 0 there, an overlap here)."""
+    if k1 == SPHERE and k2 == SPHERE:
+        dx = x2[0] - x1[0]
+        dy = x2[1] - x1[1]
+        dz = x2[2] - x1[2]
+        return math.sqrt(dx * dx + dy * dy + dz * dz) - h1[0] - h2[0] < 0.0
+    scale = bounding_radius(k1, h1) + bounding_radius(k2, h2)
+    W = ws[0:12].reshape((4, 3))
+    WA = ws[12:24].reshape((4, 3))
+    WB = ws[24:36].reshape((4, 3))
+    lam = ws[36:40]
+    pa = ws[40:43]
+    pb = ws[43:46]
+    v = ws[46:49]
+    c1 = k1 == SPHERE
+    c2 = k2 == SPHERE
+    if c1 or c2:
+        margin = (h1[0] if c1 else 0.0) + (h2[0] if c2 else 0.0)
+        st, dist, n = _gjk(k1, h1, x1, R1, c1, k2, h2, x2, R2, c2, scale, margin, W, WA, WB, lam, pa, pb, v)
+        if st == _FAR:
+            return False
+        if st == _SEPARATED and dist > 1e-9 * scale:
+            return dist - margin < 0.0
+    st, dist, n = _gjk(k1, h1, x1, R1, False, k2, h2, x2, R2, False, scale, 0.0, W, WA, WB, lam, pa, pb, v)
+    return st == _INTERSECTING
+
+
 # ------------------------------------------------------------------------------------------------
 # walls
 

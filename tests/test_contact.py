@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from scipy.optimize import minimize
 
-from lbmpipe.contact import candidate_pairs, contact_pair, contact_pipe, contact_plane
+from lbmpipe.contact import bodies_overlap_ws, candidate_pairs, contact_pair, contact_pipe, contact_plane, new_scratch
 from lbmpipe.rigid import quat_from_axis_angle, quat_to_matrix, random_quaternions
 from lbmpipe.shapes import CUBE, CYLINDER, SPHERE, support_body
 
@@ -138,6 +138,29 @@ def test_signed_gap_and_normal_match_the_separating_axis_maximum_for_random_pair
         n_overlap += g < 0
     assert 3 <= n_overlap <= 21  # both regimes were exercised
 
+
+
+def test_overlap_test_without_epa_agrees_with_the_sign_of_the_gap_for_random_pairs():
+    # the time-of-impact bisection asks only "do they overlap?"; it must answer as the full
+    # contact query would, on both sides of touching
+    rng = np.random.default_rng(5)
+    shapes = [(SPHERE, [1.0, 1.0, 1.0]), (CYLINDER, [1.0, 1.0, 2.0]), (CUBE, [1.0, 1.0, 1.0]), (CYLINDER, [2.0, 2.0, 0.7])]
+    ws = new_scratch()
+    n_overlap = 0
+    for _ in range(400):
+        k1, h1 = shapes[rng.integers(4)]
+        k2, h2 = shapes[rng.integers(4)]
+        q = random_quaternions(2, rng)
+        d = rng.standard_normal(3)
+        x2 = d / np.linalg.norm(d) * rng.uniform(0.5, 4.5)
+        g, _, _ = contact_pair(k1, h1, np.zeros(3), q[0], k2, h2, x2, q[1])
+        if abs(g) < 1e-9:
+            continue  # touching: EPA's degenerate case, where the two may differ by design
+        ov = bodies_overlap_ws(k1, np.asarray(h1, float), np.zeros(3), quat_to_matrix(q[0]),
+                               k2, np.asarray(h2, float), x2, quat_to_matrix(q[1]), ws)
+        assert ov == (g < 0.0), (k1, k2, g)
+        n_overlap += ov
+    assert 80 <= n_overlap <= 320  # both sides were exercised
 
 # ------------------------------------------------------------------------------------------------
 # walls
