@@ -1000,6 +1000,14 @@ def body_contact(k1, h1, x1, R1, k2, h2, x2, R2, max_gap, manifold_tol, nrm, c):
     return body_contact_ws(k1, h1, x1, R1, k2, h2, x2, R2, max_gap, manifold_tol, nrm, c, new_scratch(), True)
 
 
+@njit(cache=True, inline="always")
+def _gjk_scratch(ws):
+    """GJK's and EPA's working arrays as views of one scratch vector (``new_scratch``): simplex
+    W and its support points WA, WB, barycentric weights, witness points, search direction."""
+    return (ws[0:12].reshape((4, 3)), ws[12:24].reshape((4, 3)), ws[24:36].reshape((4, 3)), ws[36:40],
+            ws[40:43], ws[43:46], ws[46:49])
+
+
 @njit(cache=True)
 def body_contact_ws(k1, h1, x1, R1, k2, h2, x2, R2, max_gap, manifold_tol, nrm, c, ws, point):
     """``body_contact`` with caller-provided scratch ``ws`` (``new_scratch()``). With
@@ -1022,13 +1030,7 @@ def body_contact_ws(k1, h1, x1, R1, k2, h2, x2, R2, max_gap, manifold_tol, nrm, 
         for k in range(3):
             c[k] = x1[k] + nrm[k] * (h1[0] + 0.5 * gap)
         return gap
-    W = ws[0:12].reshape((4, 3))
-    WA = ws[12:24].reshape((4, 3))
-    WB = ws[24:36].reshape((4, 3))
-    lam = ws[36:40]
-    pa = ws[40:43]
-    pb = ws[43:46]
-    v = ws[46:49]
+    W, WA, WB, lam, pa, pb, v = _gjk_scratch(ws)
     base = ws[49:52]
     # a sphere enters GJK as its centre; its radius is a margin subtracted afterwards
     c1 = k1 == SPHERE
@@ -1105,13 +1107,7 @@ def bodies_overlap_ws(k1, h1, x1, R1, k2, h2, x2, R2, ws):
         dz = x2[2] - x1[2]
         return math.sqrt(dx * dx + dy * dy + dz * dz) - h1[0] - h2[0] < 0.0
     scale = bounding_radius(k1, h1) + bounding_radius(k2, h2)
-    W = ws[0:12].reshape((4, 3))
-    WA = ws[12:24].reshape((4, 3))
-    WB = ws[24:36].reshape((4, 3))
-    lam = ws[36:40]
-    pa = ws[40:43]
-    pb = ws[43:46]
-    v = ws[46:49]
+    W, WA, WB, lam, pa, pb, v = _gjk_scratch(ws)
     c1 = k1 == SPHERE
     c2 = k2 == SPHERE
     if c1 or c2:

@@ -102,6 +102,14 @@ def _jsonable(obj):
     return obj
 
 
+def portable_path(path) -> str:
+    """``path`` relative to the working directory if it lies below it, else as given."""
+    try:
+        return str(Path(path).resolve().relative_to(Path.cwd().resolve()))
+    except ValueError:
+        return str(path)
+
+
 def write_summary(out_dir: Path, summary: dict, scene, params) -> Path:
     """``summary.json``: the resolved scene, the lattice parameters, effects and timings, status.
 
@@ -109,6 +117,14 @@ def write_summary(out_dir: Path, summary: dict, scene, params) -> Path:
     """
     doc = dict(summary)
     doc["scene"] = scene.model_dump(mode="json")
+    # packing files are read at absolute paths; the summary names them from the working directory
+    # (the repository, for the pipeline), so summaries made in another clone read the same
+    for g in (doc["scene"].get("particles") or {}).get("packed") or []:
+        if g.get("file"):
+            g["file"] = portable_path(g["file"])
+    part = doc.get("particles")
+    if isinstance(part, dict) and isinstance(part.get("source"), str) and Path(part["source"]).is_absolute():
+        doc["particles"] = dict(part, source=portable_path(part["source"]))
     doc["lattice"] = _jsonable(params)
     doc["versions"] = versions()
     doc["git_commit"] = git_commit()

@@ -119,48 +119,47 @@ def _separating_axis_gap(kind1, h1, x1, q1, kind2, h2, x2, q2):
     return -best
 
 
-def test_signed_gap_and_normal_match_the_separating_axis_maximum_for_random_pairs():
-    rng = np.random.default_rng(11)
+def _random_pairs(seed, count, r_min, r_max):
+    """Random pairs of the test shapes, random orientations, body 1 at the origin and body 2 at
+    a random direction and distance in [r_min, r_max]: (k1, h1, q1, k2, h2, x2, q2)."""
+    rng = np.random.default_rng(seed)
     shapes = [(SPHERE, [1.0, 1.0, 1.0]), (CYLINDER, [1.0, 1.0, 2.0]), (CUBE, [1.0, 1.0, 1.0]), (CYLINDER, [2.0, 2.0, 0.7])]
-    n_overlap = 0
-    for _ in range(24):
+    for _ in range(count):
         k1, h1 = shapes[rng.integers(4)]
         k2, h2 = shapes[rng.integers(4)]
         q = random_quaternions(2, rng)
         d = rng.standard_normal(3)
-        x1 = np.zeros(3)
-        x2 = d / np.linalg.norm(d) * rng.uniform(1.8, 4.0)
-        g, n, _ = contact_pair(k1, h1, x1, q[0], k2, h2, x2, q[1])
-        ref = _separating_axis_gap(k1, h1, x1, q[0], k2, h2, x2, q[1])
+        yield k1, h1, q[0], k2, h2, d / np.linalg.norm(d) * rng.uniform(r_min, r_max), q[1]
+
+
+def test_signed_gap_and_normal_match_the_separating_axis_maximum_for_random_pairs():
+    n_overlap = 0
+    x1 = np.zeros(3)
+    for k1, h1, q1, k2, h2, x2, q2 in _random_pairs(11, 24, 1.8, 4.0):
+        g, n, _ = contact_pair(k1, h1, x1, q1, k2, h2, x2, q2)
+        ref = _separating_axis_gap(k1, h1, x1, q1, k2, h2, x2, q2)
         assert g == pytest.approx(ref, abs=1e-5)
         # the normal attains the maximum: it is the separating (or minimum-translation) axis
-        assert -(_support_value(k1, h1, x1, q[0], n) + _support_value(k2, h2, x2, q[1], -n)) == pytest.approx(g, abs=1e-5)
+        assert -(_support_value(k1, h1, x1, q1, n) + _support_value(k2, h2, x2, q2, -n)) == pytest.approx(g, abs=1e-5)
         n_overlap += g < 0
     assert 3 <= n_overlap <= 21  # both regimes were exercised
-
 
 
 def test_overlap_test_without_epa_agrees_with_the_sign_of_the_gap_for_random_pairs():
     # the time-of-impact bisection asks only "do they overlap?"; it must answer as the full
     # contact query would, on both sides of touching
-    rng = np.random.default_rng(5)
-    shapes = [(SPHERE, [1.0, 1.0, 1.0]), (CYLINDER, [1.0, 1.0, 2.0]), (CUBE, [1.0, 1.0, 1.0]), (CYLINDER, [2.0, 2.0, 0.7])]
     ws = new_scratch()
     n_overlap = 0
-    for _ in range(400):
-        k1, h1 = shapes[rng.integers(4)]
-        k2, h2 = shapes[rng.integers(4)]
-        q = random_quaternions(2, rng)
-        d = rng.standard_normal(3)
-        x2 = d / np.linalg.norm(d) * rng.uniform(0.5, 4.5)
-        g, _, _ = contact_pair(k1, h1, np.zeros(3), q[0], k2, h2, x2, q[1])
+    for k1, h1, q1, k2, h2, x2, q2 in _random_pairs(5, 400, 0.5, 4.5):
+        g, _, _ = contact_pair(k1, h1, np.zeros(3), q1, k2, h2, x2, q2)
         if abs(g) < 1e-9:
             continue  # touching: EPA's degenerate case, where the two may differ by design
-        ov = bodies_overlap_ws(k1, np.asarray(h1, float), np.zeros(3), quat_to_matrix(q[0]),
-                               k2, np.asarray(h2, float), x2, quat_to_matrix(q[1]), ws)
+        ov = bodies_overlap_ws(k1, np.asarray(h1, float), np.zeros(3), quat_to_matrix(q1),
+                               k2, np.asarray(h2, float), x2, quat_to_matrix(q2), ws)
         assert ov == (g < 0.0), (k1, k2, g)
         n_overlap += ov
     assert 80 <= n_overlap <= 320  # both sides were exercised
+
 
 # ------------------------------------------------------------------------------------------------
 # walls

@@ -13,6 +13,7 @@ from lbmpipe import cases
 from lbmpipe import effects as fx
 from lbmpipe.collisions import CollisionEffect
 from lbmpipe.coupling import MassCorrection
+from lbmpipe.outputs import write_summary
 from lbmpipe.scene import Scene, SceneError, load_scene
 from lbmpipe.solver import run_scene, simulation_from_scene
 from lbmpipe.units import derive
@@ -78,6 +79,18 @@ def test_packing_file_round_trip_reproduces_the_packed_bodies(tmp_path):
     np.testing.assert_allclose(sim.particles.bodies.x, x, atol=1e-12)
     assert sim.packing["source"].endswith("p.csv")
 
+
+def test_summary_names_the_packing_file_from_the_working_directory_not_the_clone(tmp_path, monkeypatch):
+    # a summary made in one clone must read the same in another: no absolute paths of the clone
+    monkeypatch.chdir(tmp_path)
+    packing = tmp_path / "results" / "packings" / "p.csv"
+    scene = Scene.model_validate(cases.case_scene("x", CUBE8, "tiny", SMOKE, str(packing)))
+    (tmp_path / "out").mkdir()
+    path = write_summary(tmp_path / "out", {"particles": {"source": str(packing)}}, scene, derive(scene))
+    doc = json.loads(path.read_text())
+    assert doc["particles"]["source"] == "results/packings/p.csv"
+    assert doc["scene"]["particles"]["packed"][0]["file"] == "results/packings/p.csv"
+    assert str(tmp_path) not in path.read_text()
 
 def test_packing_file_with_the_wrong_count_is_rejected_naming_the_field(tmp_path):
     pd.DataFrame({"id": [0], "x_mm": [0.0], "y_mm": [0.0], "z_mm": [0.0], "qw": [1.0], "qx": [0.0], "qy": [0.0],
