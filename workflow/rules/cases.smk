@@ -54,6 +54,8 @@ rule simulate_flow:
     benchmark:
         "results/{fidelity}/benchmarks/{case}.simulate.tsv"
     threads: _threads
+    # longest first (the cost estimate), so that the last case to start is a short one
+    priority: _runtime
     resources:
         mem_mb=2000,
         runtime=_runtime,
@@ -86,6 +88,9 @@ rule simulate_particles:
     benchmark:
         "results/{fidelity}/benchmarks/{case}.simulate.tsv"
     threads: _threads
+    # longest first (the cost estimate): without priorities the paper level's longest case
+    # (cube24_c30_re26, 13.7 min) started 30 min into the DAG, and one core idled for its last 10
+    priority: _runtime
     resources:
         mem_mb=3000,
         runtime=_runtime,
