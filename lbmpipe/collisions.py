@@ -379,12 +379,7 @@ def _toi_pair(i, j, sh, kind, h, x, v, wb, Rm, dt, sweep, manifold_tol, nrm, c, 
         return False
     lo_t = 0.0
     hi_t = dt
-    # any two material points of the pair close at most this fast (a common translation closes
-    # nothing: the flow carries touching neighbours along together)
-    srel = math.sqrt((v[i, 0] - v[j, 0]) ** 2 + (v[i, 1] - v[j, 1]) ** 2 + (v[i, 2] - v[j, 2]) ** 2)
-    srel += sweep[i] - math.sqrt(v[i, 0] ** 2 + v[i, 1] ** 2 + v[i, 2] ** 2)
-    srel += sweep[j] - math.sqrt(v[j, 0] ** 2 + v[j, 1] ** 2 + v[j, 2] ** 2)
-    for _it in range(_toi_halvings(srel * dt)):
+    for _it in range(_toi_halvings(_pair_closing(i, j, v, sweep) * dt)):
         mid = 0.5 * (lo_t + hi_t)
         _advance_one(i, mid, x, v, wb, Rm, x1, R1)
         _advance_one(j, mid, x, v, wb, Rm, x2, R2)
@@ -428,6 +423,17 @@ def _carry_back2(c, x1, R1, i, s0, s1, s2, x, Rm, x2, R2, j, sh, out):
         out[0] += (x[m, 0] + t0 + Rm[m, 0, 0] * b0 + Rm[m, 0, 1] * b1 + Rm[m, 0, 2] * b2) / nb
         out[1] += (x[m, 1] + t1 + Rm[m, 1, 0] * b0 + Rm[m, 1, 1] * b1 + Rm[m, 1, 2] * b2) / nb
         out[2] += (x[m, 2] + t2 + Rm[m, 2, 0] * b0 + Rm[m, 2, 1] * b1 + Rm[m, 2, 2] * b2) / nb
+
+
+@njit(cache=True, inline="always")
+def _pair_closing(i, j, v, sweep):
+    """The fastest any two material points of bodies i and j approach each other: their relative
+    velocity plus each one's rotation (``sweep - |v|``); a common translation closes nothing,
+    and the flow carries touching neighbours along together."""
+    s = math.sqrt((v[i, 0] - v[j, 0]) ** 2 + (v[i, 1] - v[j, 1]) ** 2 + (v[i, 2] - v[j, 2]) ** 2)
+    s += sweep[i] - math.sqrt(v[i, 0] ** 2 + v[i, 1] ** 2 + v[i, 2] ** 2)
+    s += sweep[j] - math.sqrt(v[j, 0] ** 2 + v[j, 1] ** 2 + v[j, 2] ** 2)
+    return s
 
 
 @njit(cache=True, inline="always")
