@@ -29,9 +29,15 @@ def test_hard_case_runs_with_the_guard_and_meets_the_invariants(name, packings):
     case = CASES[name]
     dx = CI["long_dx_mm"] if case.kind == "long" else CI["dx_mm"]
     row = st.run_case(case, dx, st.steps_for(case, CI), work_dir=packings)
-    assert row["status"] in ("stable", "unstable"), (row["status"], row["violations"], row.get("message"))
+    assert row["status"] in ("stable", "unstable", "violated"), (row["status"], row.get("message"))
     if case.expect is not None:
-        assert row["status"] == case.expect, row.get("message")
+        assert row["status"] == case.expect, (row["violations"], row.get("message"))
+    if row["status"] == "violated":
+        # only a case the suite records whatever its outcome (expect None: the paper's own dt at
+        # Re 26, tau near 1/2) gets here; the row names each invariant broken and its bound
+        assert row["steps_done"] == row["steps_requested"]
+        assert all(" > " in v or " < " in v for v in row["violations"].split("; ")), row["violations"]
+        return
     if row["status"] == "unstable":
         # the guard names what failed, where, when, why and the fix
         msg = row["message"]
