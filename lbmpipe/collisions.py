@@ -37,10 +37,11 @@ When is a contact treated (``CollisionParams``):
   velocities and angular velocities, would overlap by the end of the step ``dt``. The time of
   impact in the step is found by bisection, halved until the bodies close by at most ``_TOI_TOL``
   (1e-3 lattice spacings) over the bracket left (at most 12 halvings); the impulse uses the
-  contact normal at that time and the contact's material points carried back to the present (their midpoint, so
-  that both bodies receive ``-/+ I p`` at one point and the conservation laws hold exactly). The
-  bounce thus happens up to one step early instead of the bodies overlapping; this also catches a
-  corner turning into contact, which a test on the present gap and normal velocity misses;
+  contact normal at that time and the contact's material points carried back to the present
+  (their midpoint, so that both bodies receive ``-/+ I p`` at one point and the conservation laws
+  hold exactly). The bounce thus happens up to one step early instead of the bodies overlapping;
+  this also catches a corner turning into contact, which a test on the present gap and normal
+  velocity misses;
 - with several contacts the impulses are applied contact by contact (Gauss-Seidel) in repeated
   sweeps until none approaches; as impulses change velocities, the speculative test is then
   repeated (a body knocked into a third one within the step) until a round applies no impulse
@@ -80,8 +81,8 @@ import numpy as np
 from numba import njit, prange
 
 from .effects import Effect
-from .contact import (SCRATCH_SIZE, _support3, body_contact_ws, bodies_overlap_ws, bounding_radii, candidate_pairs, new_scratch,
-                      pipe_wall_contact, plane_wall_contact)
+from .contact import (SCRATCH_SIZE, _support3, bodies_overlap_ws, body_contact_ws, bounding_radii, candidate_pairs,
+                      new_scratch, pipe_wall_contact, plane_wall_contact)
 from .shapes import CYLINDER, SPHERE, bounding_radius
 from .rigid import Bodies, _qmul, quat_to_matrix, quat_to_matrices
 
@@ -369,8 +370,8 @@ def _toi_pair(i, j, sh, kind, h, x, v, wb, Rm, dt, sweep, manifold_tol, nrm, c, 
     step, find by bisection a time t before they touch, at which they are within ``_TOI_TOL`` of
     touching (``_toi_halvings``), and return True with the contact normal ``nrm`` at t and, in
     ``out_c``, the contact's material points carried back to the present (their midpoint).
-    ``ws``, ``x1``, ``x2``, ``R1``, ``R2``: scratch. The overlap tests need only the sign of the
-    gap, so they skip the contact point (same gap bits)."""
+    ``ws``, ``x1``, ``x2``, ``R1``, ``R2``: scratch. The trial times ask only whether the bodies
+    overlap (``bodies_overlap_ws``: GJK, no EPA, no contact point)."""
     _advance_one(i, dt, x, v, wb, Rm, x1, R1)
     _advance_one(j, dt, x, v, wb, Rm, x2, R2)
     for k in range(3):
@@ -393,7 +394,7 @@ def _toi_pair(i, j, sh, kind, h, x, v, wb, Rm, dt, sweep, manifold_tol, nrm, c, 
     _advance_one(j, lo_t, x, v, wb, Rm, x2, R2)
     for k in range(3):
         x2[k] += sh[k]
-    body_contact_ws(kind[i], h[i], x1, R1, kind[j], h[j], x2, R2, np.inf, manifold_tol, nrm, c, ws, True)
+    body_contact_ws(kind[i], h[i], x1, R1, kind[j], h[j], x2, R2, np.inf, manifold_tol, nrm, c, ws)
     _carry_back2(c, x1, R1, i, 0.0, 0.0, 0.0, x, Rm, x2, R2, j, sh, out_c)
     return True
 
@@ -577,7 +578,7 @@ def _narrow_chunk(ch, ncp, kind, h, x, Rm, rb, pi, pj, ps, max_gap, manifold_tol
                         cc[m, k] = 0.5 * (x[i, k] + x2[k])
                     continue
             cg[m] = body_contact_ws(kind[i], h[i], x[i], Rm[i], kind[j], h[j], x2, Rm[j], max_gap, manifold_tol, nrm,
-                                    c, ws, True)
+                                    c, ws)
             for k in range(3):
                 cn[m, k] = nrm[k]
                 cc[m, k] = c[k]
@@ -697,7 +698,8 @@ def _activate_one(m, pi, pj, ps, cg, cn, cc, wi, wg, wn, wc, npair, kind, h, x, 
                 gp_c[m, k] = cc[m, k]
         elif (spec and cg[m] - (sweep[i] + sweep[j]) * dt <= _SWEEP_SLACK
               and not _apart_after(i, j, ps[m], cn[m], kind, h, x, v, wb, Rm, dt, x1, x2, R1, R2)):
-            if _toi_pair(i, j, ps[m], kind, h, x, v, wb, Rm, dt, sweep, manifold_tol, pnrm, pc, gp_c[m], ws, x1, x2, R1, R2):
+            if _toi_pair(i, j, ps[m], kind, h, x, v, wb, Rm, dt, sweep, manifold_tol, pnrm, pc, gp_c[m], ws, x1, x2,
+                         R1, R2):
                 on_p[m] = True
                 for k in range(3):
                     gp_n[m, k] = pnrm[k]
@@ -710,8 +712,8 @@ def _activate_one(m, pi, pj, ps, cg, cn, cc, wi, wg, wn, wc, npair, kind, h, x, 
                 gw_n[m, k] = wn[m, k]
                 gw_c[m, k] = wc[m, k]
         elif spec and wg[m] - _wall_closing(i, v, sweep, dcode, wn[m]) * dt <= _SWEEP_SLACK:
-            if _toi_wall(i, kind, h, x, v, wb, Rm, dt, sweep, dcode, Rp, cx, cy, lo, hi, wn[m], manifold_tol, pnrm, pc, gw_c[m],
-                         x1, R1):
+            if _toi_wall(i, kind, h, x, v, wb, Rm, dt, sweep, dcode, Rp, cx, cy, lo, hi, wn[m], manifold_tol, pnrm, pc,
+                         gw_c[m], x1, R1):
                 on_w[m] = True
                 for k in range(3):
                     gw_n[m, k] = pnrm[k]
@@ -756,8 +758,7 @@ def _measure_pair(i, j, m, ps, kind, h, x, Rm, margin, manifold_tol, cg, cn, cc,
     cg, cn, cc (x2: scratch)."""
     for k in range(3):
         x2[k] = x[j, k] + ps[m, k]
-    cg[m] = body_contact_ws(kind[i], h[i], x[i], Rm[i], kind[j], h[j], x2, Rm[j], margin, manifold_tol, nrm, c, ws,
-                            True)
+    cg[m] = body_contact_ws(kind[i], h[i], x[i], Rm[i], kind[j], h[j], x2, Rm[j], margin, manifold_tol, nrm, c, ws)
     for k in range(3):
         cn[m, k] = nrm[k]
         cc[m, k] = c[k]
@@ -881,7 +882,7 @@ def _final_overlap(kind, h, x, Rm, pi, pj, ps, cg, wi, wg, wn, d1, d2, dw, disp,
             for k in range(3):
                 x2[k] = x[j, k] + ps[m, k]
             bound = body_contact_ws(kind[i], h[i], x[i], Rm[i], kind[j], h[j], x2, Rm[j], margin, manifold_tol, nrm, c,
-                                    ws, True)
+                                    ws)
         ova = max(ova, -bound)
     for m in range(wi.shape[0]):
         i = wi[m]

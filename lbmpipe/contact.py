@@ -997,7 +997,7 @@ def body_contact(k1, h1, x1, R1, k2, h2, x2, R2, max_gap, manifold_tol, nrm, c):
     body->lab) and body 2; writes the unit normal from 1 to 2 into ``nrm`` and the contact point
     into ``c`` (both (3,)). If the gap exceeds ``max_gap`` the function may stop early and return
     a lower bound of the gap (> max_gap); ``nrm`` and ``c`` are then only approximate."""
-    return body_contact_ws(k1, h1, x1, R1, k2, h2, x2, R2, max_gap, manifold_tol, nrm, c, new_scratch(), True)
+    return body_contact_ws(k1, h1, x1, R1, k2, h2, x2, R2, max_gap, manifold_tol, nrm, c, new_scratch())
 
 
 @njit(cache=True, inline="always")
@@ -1009,11 +1009,10 @@ def _gjk_scratch(ws):
 
 
 @njit(cache=True)
-def body_contact_ws(k1, h1, x1, R1, k2, h2, x2, R2, max_gap, manifold_tol, nrm, c, ws, point):
-    """``body_contact`` with caller-provided scratch ``ws`` (``new_scratch()``). With
-    ``point=False`` the contact point ``c`` is not computed (it is left approximate); the gap and
-    the normal are the same bits as with ``point=True``, for callers that need only the sign of
-    the gap (the time-of-impact bisection)."""
+def body_contact_ws(k1, h1, x1, R1, k2, h2, x2, R2, max_gap, manifold_tol, nrm, c, ws):
+    """``body_contact`` with caller-provided scratch ``ws`` (``new_scratch()``). Callers that need
+    only whether two bodies overlap ask ``bodies_overlap_ws``, which skips EPA and the contact
+    point."""
     rb1 = bounding_radius(k1, h1)
     rb2 = bounding_radius(k2, h2)
     scale = rb1 + rb2
@@ -1087,7 +1086,7 @@ def body_contact_ws(k1, h1, x1, R1, k2, h2, x2, R2, max_gap, manifold_tol, nrm, 
         gap = -depth
     for k in range(3):
         base[k] = 0.5 * (pa[k] + pb[k])
-    if c1 or c2 or not point:
+    if c1 or c2:
         for k in range(3):
             c[k] = base[k]
     else:

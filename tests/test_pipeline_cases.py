@@ -92,6 +92,7 @@ def test_summary_names_the_packing_file_from_the_working_directory_not_the_clone
     assert doc["scene"]["particles"]["packed"][0]["file"] == "results/packings/p.csv"
     assert str(tmp_path) not in path.read_text()
 
+
 def test_packing_file_with_the_wrong_count_is_rejected_naming_the_field(tmp_path):
     pd.DataFrame({"id": [0], "x_mm": [0.0], "y_mm": [0.0], "z_mm": [0.0], "qw": [1.0], "qx": [0.0], "qy": [0.0],
                   "qz": [0.0]}).to_csv(tmp_path / "bad.csv", index=False)
