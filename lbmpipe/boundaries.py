@@ -226,7 +226,7 @@ def fill_moving_bounce_back(f2, fluid, solid, i, opp, delta):
         f2[opp[k], solid[k]] = f2[i[k], fluid[k]] - delta[k]
 
 
-@njit(parallel=True, cache=True, fastmath=True)
+@njit(parallel=True, cache=True)
 def fill_bouzidi(f2, fluid, solid, i, opp, q, fluid2, w_link, w_sum):
     """Interpolated bounce-back (Bouzidi et al. 2001), linear in q; second order for curved walls.
 
@@ -251,6 +251,9 @@ def fill_bouzidi(f2, fluid, solid, i, opp, q, fluid2, w_link, w_sum):
             val = a / (2.0 * qk) + (2.0 * qk - 1.0) / (2.0 * qk) * f2[opp[k], fluid[k]]
         f2[opp[k], solid[k]] = val
         excess[k] = val - a
-    corr = excess.sum() / w_sum
+    total = 0.0
+    for k in range(n):  # in order: numba would split excess.sum() across the threads
+        total += excess[k]
+    corr = total / w_sum
     for k in prange(n):
         f2[opp[k], solid[k]] -= corr * w_link[k]

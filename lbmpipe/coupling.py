@@ -504,7 +504,7 @@ def mark_initial(order, rect, run_off, z1, z2, owner, count, x, G, L):
 # Per-step coupling over the link lists
 
 
-@njit(parallel=True, cache=True, fastmath=True)
+@njit(parallel=True, cache=True)
 def couple_free(f2, owner, chg, ids, x, mass, inertia, q, v, wb, fext, imp, om, force, torque, exch, w, opp, rho0,
                 G, lbase, lcnt, LN, LC, SF, SM):
     """One step of the coupling of the free particles ``ids`` (module docstring), one particle per
@@ -719,7 +719,7 @@ def couple_free(f2, owner, chg, ids, x, mass, inertia, q, v, wb, fext, imp, om, 
                 f2[oi, LN[pos, 1]] = LF[pos - off0] - c6eu - LC[pos, 0] * cx - LC[pos, 1] * cy - LC[pos, 2] * cz
 
 
-@njit(parallel=True, cache=True, fastmath=True)
+@njit(parallel=True, cache=True)
 def fixed_fill(f2, owner, chg, ids, x, force, torque, exch, w, opp, rho0, G, lbase, lcnt, LN, LC):
     """Fixed particles: half-way bounce-back on their live links (Eq. (8) with u_b = 0; dead links
     are dropped, as in ``couple_free``) and their force and torque, Eqs. (9)-(12) (reference
@@ -1178,7 +1178,10 @@ def wall_exchange(f2, owner, fluid, solid, i, opp, ez):
             if owner[fluid[k]] == FLUID:
                 acc += ez[k] * (f2[i[k], fluid[k]] + f2[opp[k], solid[k]])
         part[c] = acc
-    return part.sum()
+    total = 0.0
+    for c in range(nchunk):  # in order: numba would split part.sum() across the threads
+        total += part[c]
+    return total
 
 
 @njit(parallel=True, cache=True)
@@ -1199,7 +1202,11 @@ def _fluid_momentum(f2, owner, e):
                 part[c, 1] += e[i, 0] * fv
                 part[c, 2] += e[i, 1] * fv
                 part[c, 3] += e[i, 2] * fv
-    return part.sum(axis=0)
+    total = np.zeros(4)
+    for c in range(nchunk):  # in order: numba would split part.sum() across the threads
+        for a in range(4):
+            total[a] += part[c, a]
+    return total
 
 
 # ----------------------------------------------------------------------------------------------

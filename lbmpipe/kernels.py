@@ -65,7 +65,7 @@ from numba.core.typed_passes import NativeLowering
 
 from .lattice import Lattice, get_lattice
 
-GENERATOR_VERSION = "5"
+GENERATOR_VERSION = "6"
 
 
 @dataclass(frozen=True)
@@ -347,7 +347,8 @@ def render(spec: KernelSpec) -> str:
         sweep_ret = "acc, fm, fn"
         collect = ("res = _sweep", "partial[chunk, 0] = res[0]{half_force}\n        partial[chunk, 1] = res[1]\n"
                    "        partial[chunk, 2] = res[2]")
-        finish = "tally[0] += partial[:, 1].sum()\n    tally[1] += partial[:, 2].sum()\n    return partial[:, 0].sum()"
+        finish = ("total = 0.0\n    for chunk in range(nchunks):\n        total += partial[chunk, 0]\n"
+                  "        tally[0] += partial[chunk, 1]\n        tally[1] += partial[chunk, 2]\n    return total")
         part_shape = "(nchunks, 3)"
         collect_tail = "\n        " + collect[1].format(half_force=half_force)
     else:
@@ -356,7 +357,7 @@ def render(spec: KernelSpec) -> str:
         sweep_head = "acc = 0.0"
         sweep_ret = "acc"
         collect = ("partial[chunk] = _sweep", "")
-        finish = "return partial.sum()"
+        finish = "total = 0.0\n    for chunk in range(nchunks):\n        total += partial[chunk]\n    return total"
         part_shape = "nchunks"
         collect_tail = ""
     halo_lo, halo_hi = halo_fill(1), halo_fill(-1)
@@ -450,6 +451,7 @@ def stream_collide(src, dst, cols_x, cols_y, xm, xp, ym, yp, z0, z1, nzw, omega,
         {collect[0]}(s, {d_args},
                                 cols_x, cols_y, xm, xp, ym, yp, c_lo, c_hi, plane, ny, nza, nzw, z0, z1, lo, n,
                                 halo_lo, halo_hi, end_lo, end_hi, {par}){"" if spec.floor else half_force}{collect_tail}
+    # summed in chunk order, not by numba's parallel reduction: the same bits on any thread count
     {finish}
 """
 

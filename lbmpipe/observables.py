@@ -58,7 +58,10 @@ def _masked_sum(f, fluid):
                 if fluid[a, b, c]:
                     for i in range(q):
                         partial[a] += f[i, a, b, c]
-    return partial.sum()
+    total = 0.0
+    for a in range(nx):  # in order: numba would split partial.sum() across the threads
+        total += partial[a]
+    return total
 
 
 def total_mass(f: np.ndarray, fluid: np.ndarray) -> float:

@@ -312,6 +312,20 @@ def _overlap_free_scale(kind, h, x, q, radius, lo, hi, periodic, tolerance) -> f
     return a
 
 
+def _compile_kernels() -> None:
+    """Compile (or load from numba's cache) the packing's kernels on two tiny bodies, so that
+    ``max_seconds`` times the search and not a cold first compile, which takes most of a minute
+    and would otherwise turn a packable target into a ``PackingError`` on a fresh machine."""
+    h = np.full(3, 0.5)
+    x = np.array([[0.0, 0.0, 1.0], [0.0, 0.0, 2.5]])
+    q = np.tile([1.0, 0.0, 0.0, 0.0], (2, 1))
+    lo = np.array([-3.0, -3.0, 0.0])
+    hi = np.array([3.0, 3.0, 6.0])
+    periodic = np.array([False, False, True])
+    _relax_sweeps(CUBE, h, x, q, np.ones(3), 3.0, lo, hi, periodic, 1e-3, 1, ROTATION_WEIGHT)
+    _max_overlap(CUBE, h, x, q, 3.0, lo, hi, periodic)
+
+
 def pack(
     kind: int,
     h,
@@ -333,6 +347,7 @@ def pack(
     fraction reached) if the target is not reached within ``max_seconds``; ``ValueError`` for
     invalid input. Method: module docstring.
     """
+    _compile_kernels()
     t0 = time.perf_counter()
     kind = int(kind)
     h = np.ascontiguousarray(h, dtype=np.float64).reshape(3)

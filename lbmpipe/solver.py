@@ -31,6 +31,9 @@ from . import observables as obs
 from .kernels import KernelSpec, dtype_of
 from .lattice import get_lattice
 
+#: column chunks of the fluid sweep: 4 per thread up to 16 threads
+SWEEP_CHUNKS = 64
+
 
 class Simulation:
     """A lattice Boltzmann run on a grid with an ordered list of effects."""
@@ -58,8 +61,10 @@ class Simulation:
         self.effects.append(fx.StreamCollide(spec, density_floor if floor else 0.0))
         self.effects += [e for e in (extra_effects or []) if e.phase == "post"]
         self.timers = {e.name: 0.0 for e in self.effects}
-        # A few chunks per thread balance the columns across cores without per-column overhead.
-        self.n_chunks = max(1, min(len(grid.cols_x), 4 * numba.get_num_threads()))
+        # Chunks of columns balance the cores without per-column overhead. Their number must not
+        # depend on the thread count: the flux is summed per chunk, and a run on 1 thread must
+        # give the bits of a run on 2 (or a resumed run on another machine).
+        self.n_chunks = max(1, min(len(grid.cols_x), SWEEP_CHUNKS))
         self.set_equilibrium(1.0, (0.0, 0.0, 0.0))
         self.guard = None  # guard.Guard: checks the state every guard.every steps
         self.particles = None  # coupling.ParticleSystem when the scene has particles

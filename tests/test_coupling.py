@@ -325,35 +325,41 @@ def test_scene_without_particles_runs_no_particle_effect():
     assert not any("particle" in e.name for e in sim.effects)
 
 
+def _moving_particles_run(threads, steps=60):
+    """Two cubes and a cylinder moving through a flow-rate-controlled pipe (covering and
+    uncovering nodes), on ``threads`` numba threads: ``(Simulation, ParticleSystem)``."""
+    import numba
+
+    numba.set_num_threads(threads)
+    grid = bnd.pipe_grid(LAT, 20, 32)
+    rng = np.random.default_rng(5)
+    bodies = Bodies.concatenate([
+        Bodies.make(shapes.CUBE, [3.0, 3.0, 3.0], 1.0, [[3.0, -2.0, 6.0], [-4.0, 3.0, 22.0]],
+                    q=random_quaternions(2, rng), v=[[0.02, 0.01, 0.06], [-0.01, 0.02, 0.05]],
+                    wb=[[0.02, -0.01, 0.03], [0.0, 0.03, -0.02]]),
+        Bodies.make(shapes.CYLINDER, [2.5, 2.5, 3.5], 1.0, [[0.0, 0.0, 14.0]], q=random_quaternions(1, rng),
+                    v=[[0.0, 0.0, 0.08]], wb=[[0.03, 0.0, 0.0]]),
+    ])
+    system = cp.ParticleSystem(grid, bodies)
+    walls = fx.wall_effects(grid, "bounce_back", {})
+    pre, before, after = cp.particle_effects(system, flux_control=True, wall_links=[w.links for w in walls])
+    ctl = fx.FlowRateControl(0.05 * math.pi * 100.0, grid.radius, 0.1, 32)
+    sim = Simulation(grid, omega=1 / 0.8, force=(0.0, 0.0, ctl.f_ref), flux=True,
+                     extra_effects=walls + pre + before + [ctl] + after)
+    sim.step(steps)
+    return sim, system
+
+
 @pytest.mark.skipif(__import__("numba").config.NUMBA_NUM_THREADS < 2, reason="needs 2 numba threads")
 def test_moving_particles_give_bit_identical_results_on_one_and_two_threads():
     # The coupling runs in parallel over particles and the remap in parallel over nodes; every
-    # sum keeps one order, so the thread count must not change a single bit (nor the link lists).
+    # sum keeps one order (no numba parallel reduction, chunks independent of the thread count),
+    # so the thread count must not change a single bit (nor the link lists).
     import numba
-
-    def run(threads):
-        numba.set_num_threads(threads)
-        grid = bnd.pipe_grid(LAT, 20, 32)
-        rng = np.random.default_rng(5)
-        bodies = Bodies.concatenate([
-            Bodies.make(shapes.CUBE, [3.0, 3.0, 3.0], 1.0, [[3.0, -2.0, 6.0], [-4.0, 3.0, 22.0]],
-                        q=random_quaternions(2, rng), v=[[0.02, 0.01, 0.06], [-0.01, 0.02, 0.05]],
-                        wb=[[0.02, -0.01, 0.03], [0.0, 0.03, -0.02]]),
-            Bodies.make(shapes.CYLINDER, [2.5, 2.5, 3.5], 1.0, [[0.0, 0.0, 14.0]], q=random_quaternions(1, rng),
-                        v=[[0.0, 0.0, 0.08]], wb=[[0.03, 0.0, 0.0]]),
-        ])
-        system = cp.ParticleSystem(grid, bodies)
-        walls = fx.wall_effects(grid, "bounce_back", {})
-        pre, before, after = cp.particle_effects(system, flux_control=True, wall_links=[w.links for w in walls])
-        ctl = fx.FlowRateControl(0.05 * math.pi * 100.0, grid.radius, 0.1, 32)
-        sim = Simulation(grid, omega=1 / 0.8, force=(0.0, 0.0, ctl.f_ref), flux=True,
-                         extra_effects=walls + pre + before + [ctl] + after)
-        sim.step(60)
-        return sim, system
 
     before = numba.get_num_threads()
     try:
-        (s1, p1), (s2, p2) = run(1), run(2)
+        (s1, p1), (s2, p2) = _moving_particles_run(1), _moving_particles_run(2)
     finally:
         numba.set_num_threads(before)
     assert p1.last_cover != (0, 0)  # nodes were covered and uncovered
@@ -363,3 +369,37 @@ def test_moving_particles_give_bit_identical_results_on_one_and_two_threads():
     for a in ("x", "v", "q", "wb"):
         assert np.array_equal(getattr(p1.bodies, a), getattr(p2.bodies, a)), a
     assert s1.last_flux == s2.last_flux
+
+
+_DIGEST = """
+import hashlib, json, sys
+sys.path.insert(0, sys.argv[1])
+from test_coupling import _moving_particles_run
+from lbmpipe import coupling
+sim, system = _moving_particles_run(2)
+h = hashlib.sha256(sim.f.tobytes())
+for a in ("x", "v", "q", "wb"):
+    h.update(getattr(system.bodies, a).tobytes())
+h.update(repr(sim.last_flux).encode())
+print(json.dumps({"digest": h.hexdigest(), "cache_hits": sum(coupling.couple_free.stats.cache_hits.values())}))
+"""
+
+
+@pytest.mark.skipif(__import__("numba").config.NUMBA_NUM_THREADS < 2, reason="needs 2 numba threads")
+def test_moving_particles_give_the_same_bits_whether_numba_compiles_the_code_or_loads_it_from_its_cache(tmp_path):
+    # A resumed run loads from numba's cache the code the interrupted run compiled: the two must
+    # compute the same bits. With fastmath, a parallel function's cached machine code rounded
+    # differently from the freshly compiled one (couple_free, before it lost fastmath).
+    import json
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / "numba"), LBMPIPE_CACHE_DIR=str(tmp_path / "kernels"),
+               NUMBA_NUM_THREADS="2")
+    tests = str(Path(__file__).resolve().parent)
+    runs = [json.loads(subprocess.run([sys.executable, "-c", _DIGEST, tests], env=env, capture_output=True,
+                                      text=True, check=True).stdout.splitlines()[-1]) for _ in range(2)]
+    assert runs[0]["cache_hits"] == 0 and runs[1]["cache_hits"] > 0  # compiled, then loaded
+    assert runs[0]["digest"] == runs[1]["digest"]
