@@ -12,6 +12,8 @@ rule pack:
     log:
         "results/packings/{packing}.log",
     threads: 1
+    # longest case first: its packing and scene go before the others (see simulate_particles)
+    priority: _packing_priority
     resources:
         runtime=3,
     script:
@@ -33,6 +35,7 @@ rule scene:
         "results/{fidelity}/logs/{case}.scene.log",
     params:
         settings=_scene_settings,
+    priority: _runtime
     run:
         write_case_scene(config, wildcards.fidelity, wildcards.case, output[0], packing_csv=input.get("packing"))
 

@@ -1,4 +1,5 @@
 # Functions the rules use (Snakemake's lint wants them apart from the rules).
+import functools
 import json
 
 from lbmpipe import stability as lbm_stability
@@ -27,8 +28,21 @@ def _threads(wildcards):
     return int(config["fidelities"][wildcards.fidelity].get("threads", 2))
 
 
+@functools.cache
+def _estimate(fidelity, case):
+    return estimate_minutes(config, fidelity, case)
+
+
 def _runtime(wildcards):
-    return estimate_minutes(config, wildcards.fidelity, wildcards.case)
+    return _estimate(wildcards.fidelity, wildcards.case)
+
+
+def _packing_priority(wildcards):
+    # The longest case waiting for this packing (at the default level): priorities on the
+    # simulations alone did not reach their packings, and the paper level's two longest cases
+    # (13 min each) waited 18 min for theirs.
+    return max((_estimate(FIDELITY, c) for c in PARTICLE_CASES if packing_id(config["cases"][c]) == wildcards.packing),
+               default=1)
 
 
 def _study_run_dirs(wildcards):
