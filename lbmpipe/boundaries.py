@@ -31,6 +31,7 @@ import numpy as np
 from numba import njit, prange
 
 from .lattice import Lattice
+from .observables import ordered_sum
 
 SIDES = ("x-", "x+", "y-", "y+", "z-", "z+")
 
@@ -251,9 +252,6 @@ def fill_bouzidi(f2, fluid, solid, i, opp, q, fluid2, w_link, w_sum):
             val = a / (2.0 * qk) + (2.0 * qk - 1.0) / (2.0 * qk) * f2[opp[k], fluid[k]]
         f2[opp[k], solid[k]] = val
         excess[k] = val - a
-    total = 0.0
-    for k in range(n):  # in order: numba would split excess.sum() across the threads
-        total += excess[k]
-    corr = total / w_sum
+    corr = ordered_sum(excess) / w_sum
     for k in prange(n):
         f2[opp[k], solid[k]] -= corr * w_link[k]

@@ -169,6 +169,7 @@ from numba.core import cgutils
 from numba.extending import intrinsic
 
 from . import effects as fx
+from .observables import ordered_sum
 from .rigid import Bodies, drift_arrays, omega_lab_arrays, quat_to_matrix
 from .shapes import CYLINDER, SPHERE, bounding_radius, volume
 
@@ -1178,10 +1179,7 @@ def wall_exchange(f2, owner, fluid, solid, i, opp, ez):
             if owner[fluid[k]] == FLUID:
                 acc += ez[k] * (f2[i[k], fluid[k]] + f2[opp[k], solid[k]])
         part[c] = acc
-    total = 0.0
-    for c in range(nchunk):  # in order: numba would split part.sum() across the threads
-        total += part[c]
-    return total
+    return ordered_sum(part)
 
 
 @njit(parallel=True, cache=True)
@@ -1202,10 +1200,9 @@ def _fluid_momentum(f2, owner, e):
                 part[c, 1] += e[i, 0] * fv
                 part[c, 2] += e[i, 1] * fv
                 part[c, 3] += e[i, 2] * fv
-    total = np.zeros(4)
-    for c in range(nchunk):  # in order: numba would split part.sum() across the threads
-        for a in range(4):
-            total[a] += part[c, a]
+    total = np.empty(4)
+    for a in range(4):
+        total[a] = ordered_sum(part[:, a])
     return total
 
 

@@ -13,6 +13,17 @@ import numpy as np
 from numba import njit, prange
 
 
+@njit(cache=True)
+def ordered_sum(a):
+    """Sum of the 1-D array ``a`` in index order. Inside a ``parallel=True`` function numba turns
+    ``a.sum()`` into a parallel reduction whose order, and so whose last bits, follow the thread
+    count; the per-chunk partials of the parallel functions are added with this instead."""
+    total = 0.0
+    for k in range(a.shape[0]):
+        total += a[k]
+    return total
+
+
 @njit(parallel=True, cache=True, fastmath=True)
 def _moments(f, ex, ey, ez, fx, fy, fz, rho, ux, uy, uz):
     q, nx, ny, nz = f.shape[0], rho.shape[0], rho.shape[1], rho.shape[2]
@@ -58,10 +69,7 @@ def _masked_sum(f, fluid):
                 if fluid[a, b, c]:
                     for i in range(q):
                         partial[a] += f[i, a, b, c]
-    total = 0.0
-    for a in range(nx):  # in order: numba would split partial.sum() across the threads
-        total += partial[a]
-    return total
+    return ordered_sum(partial)
 
 
 def total_mass(f: np.ndarray, fluid: np.ndarray) -> float:
