@@ -101,10 +101,60 @@ class Grid:
 def _alloc_z(nz: int) -> int:
     # At least two spare slots per z-row: the fluid kernel keeps a one-node z-halo of a periodic
     # column there (slot nz, and the last slot before the next row), so that its pull along z
-    # never splits a row (see kernels.py). Power-of-two extents map the q planes of f onto the
-    # same cache sets; a few more elements per z-row break the alignment (measured ~10 % on a
-    # 64^3 box).
+    # never splits a row (see kernels.py). Two more for a power-of-two nz keep the rows of one
+    # plane off a common 512-byte alignment; the q-planes themselves are skewed by plane_stride.
     return nz + 4 if nz % 16 == 0 else nz + 2
+
+
+#: when the q-planes of ``f`` would share cache sets, their stride is padded to this many cache
+#: lines modulo 4 KiB (odd: every plane then has its own L1 and L2 sets; see ``plane_stride``)
+PLANE_SKEW_LINES = 5
+_LINE = 64
+_PAGE = 4096
+
+
+def plane_stride(plane: int, itemsize: int, q: int) -> int:
+    """Elements from one q-plane of ``f`` to the next: ``plane`` (nodes per plane), padded when
+    the q planes would otherwise start in fewer than q distinct L1 sets (4 KiB / 64 B lines).
+
+    Why: the sweep streams q rows in and q rows out at the same node offset of every plane. When
+    the plane size is a multiple of 4 KiB (any box whose x-y extent is a power of two, such as
+    64^3, whatever ``alloc_z`` pads along z) all of them fall into the same L1 set (12 ways) and,
+    at 128 KiB, the same L2 set. Measured, 64^3 box, median of 9 interleaved rounds: 51 MLUPS
+    unpadded, 76 padded on 1 thread; 106 and 136 on 2. A stride of an odd number of lines modulo
+    4 KiB gives every plane its own sets (modulo the L2's 128 KiB too). A plane that already
+    spreads (the paper's pipe: 44 lines modulo 4 KiB) is left as it is; padding it measured the
+    same within the noise."""
+    per_line = _LINE // itemsize
+    stride = -(-plane // per_line) * per_line
+    lines = stride // per_line
+    sets = _PAGE // _LINE
+    if len({(i * lines) % sets for i in range(q)}) == q:
+        return stride
+    target = PLANE_SKEW_LINES * per_line
+    return stride + (target - stride) % (_PAGE // itemsize)
+
+
+def alloc_populations(q: int, grid: Grid, dtype) -> np.ndarray:
+    """Zeroed ``f[q, x, y, alloc_z]``: a view of a C-contiguous ``(q, plane_stride)`` buffer
+    (``plane_buffer`` returns it), so the q-planes are skewed across cache sets."""
+    nx, ny, _ = grid.shape
+    plane = nx * ny * grid.alloc_z
+    buf = np.zeros((q, plane_stride(plane, np.dtype(dtype).itemsize, q)), dtype=dtype)
+    return buf[:, :plane].reshape(q, nx, ny, grid.alloc_z)
+
+
+def plane_buffer(f: np.ndarray) -> np.ndarray:
+    """The C-contiguous ``(q, stride)`` array whose row ``i`` starts with plane ``i`` of ``f``:
+    flat node ``n`` of population ``i`` is ``[i, n]`` (``Grid.flat``), as in ``f.reshape(q, -1)``
+    of a contiguous ``f``. Numba functions take this 2-D form (unit stride known at compile time)."""
+    if f.flags.c_contiguous:
+        return f.reshape(f.shape[0], -1)
+    b = f.base
+    if (b is None or b.ndim != 2 or not b.flags.c_contiguous or b.shape[0] != f.shape[0]
+            or b.strides[0] != f.strides[0] or b.ctypes.data != f.ctypes.data):
+        raise ValueError("populations must come from alloc_populations (or be C-contiguous)")
+    return b
 
 
 def pipe_grid(lattice: Lattice, n_diameter: int, n_length: int) -> Grid:

@@ -169,6 +169,7 @@ from numba.core import cgutils
 from numba.extending import intrinsic
 
 from . import effects as fx
+from .boundaries import plane_buffer
 from .observables import ordered_sum
 from .rigid import Bodies, drift_arrays, omega_lab_arrays, quat_to_matrix
 from .shapes import CYLINDER, SPHERE, bounding_radius, volume
@@ -1541,7 +1542,7 @@ class ParticleFluxCorrection(fx.Effect):
         self.p_fluid += fz * s.n_fluid - e_wall - float(s.exch[:, 2].sum())
         self.steps += 1
         if self.steps % self.resync_every == 0:
-            self.p_fluid = float(s.fluid_momentum(sim.f_next.reshape(sim.lattice.q, -1))[3])
+            self.p_fluid = float(s.fluid_momentum(plane_buffer(sim.f_next))[3])
         # per fluid node the kernel sums the streamed j_z + F_z/2 = post-collision j_z - F_z/2
         sim.last_flux = self.p_fluid - 0.5 * fz * s.n_fluid + float(np.dot(s.nown, s.bodies.v[:, 2]))
 
@@ -1557,7 +1558,7 @@ class ParticleMotion(fx.Effect):
         self.system = system
 
     def __call__(self, sim) -> None:
-        self.system.move(sim.f_next.reshape(sim.lattice.q, -1))
+        self.system.move(plane_buffer(sim.f_next))
 
 
 class BouzidiParticleGuard(fx.Effect):
@@ -1606,7 +1607,7 @@ class MassCorrection(fx.Effect):
     def __call__(self, sim) -> None:
         s = self.system
         self.calls += 1
-        f2 = sim.f_next.reshape(sim.lattice.q, -1)
+        f2 = plane_buffer(sim.f_next)
         if self.rho_target is None:
             self.rho_target = float(s.fluid_momentum(f2)[0]) / max(s.n_fluid, 1)
         if self.calls % self.every:

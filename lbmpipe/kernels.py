@@ -22,7 +22,9 @@ nodes floored, for the summary. Why: see ``effects.StreamCollide``. It is writte
 (``max``), so the row still vectorizes; measured cost on the paper's pipe, 1 thread: 3-8 % of the
 sweep (median of per-round ratios over three runs on the shared machine: 1.08, 0.97, 1.14).
 
-Memory layout (structure of arrays): ``f[q, x, y, z]``, C-contiguous, z fastest. Walls and
+Memory layout (structure of arrays): ``f[q, x, y, z]``, z fastest, each q-plane contiguous and the
+planes a few cache lines more than their size apart (``boundaries.plane_stride``: against cache-set
+conflicts between the q streams); the kernel takes the ``(q, stride)`` buffer. Walls and
 particle surfaces are not tested in the kernel: before each sweep the boundary effects write the
 bounced-back populations into the "ghost" slots of the solid nodes that fluid nodes pull from
 (see ``boundaries.py``), so the sweep itself is branch-free. Only fluid *columns* (x, y) are
@@ -41,10 +43,12 @@ stores and no staging copy. Three things make LLVM compile it so from numba:
   by one;
 * offsets and counters are unsigned, so numba emits no negative-index wrap-around test.
 
-Measured with ``benchmarks/fluid.py`` (2026-11-22, 2-core Sapphire Rapids): the 64^3 periodic
-box at 69.7 / 127.8 MLUPS on 1 / 2 threads (the former kernel, which copied every population
-into an L1 staging buffer and back, 54.2 / 94.5), 0.81 / 1.12 x lbmpy's AVX-512 kernel; the
-paper's pipe at about 80 % of the copy-bandwidth roofline.
+Measured with ``benchmarks/fluid.py`` (2026-12-01, 2-core Sapphire Rapids, medians over five
+runs): the 64^3 periodic box at 75 / 137 MLUPS on 1 / 2 threads, 91 % / 79 % of the
+copy-bandwidth roofline, 1.22 / 1.08 x lbmpy's AVX-512 kernel in the same runs (single runs
+0.89-1.37 / 0.98-1.12); the paper's pipe at 87 % / 76 % of the roofline. Before the q-planes were
+skewed across cache sets (``boundaries.plane_stride``) the box ran at 51-58 / 106-119 MLUPS,
+0.81-0.83 x lbmpy.
 """
 
 from __future__ import annotations
@@ -65,7 +69,7 @@ from numba.core.typed_passes import NativeLowering
 
 from .lattice import Lattice, get_lattice
 
-GENERATOR_VERSION = "6"
+GENERATOR_VERSION = "7"
 
 
 @dataclass(frozen=True)
@@ -309,7 +313,7 @@ def render(spec: KernelSpec) -> str:
     else:
         row_tail = f"    return {ret}\n"
     # plane i of src / dst as a 1-d array: argument s_i / d_i of the row sweep
-    planes = "    s = src.reshape(-1)\n    plane = src[0].size\n" + "\n".join(f"    d{i} = dst[{i}].reshape(-1)" for i in range(Q))
+    planes = "    s = src.reshape(-1)\n    plane = src.shape[1]\n" + "\n".join(f"    d{i} = dst[{i}]" for i in range(Q))
     rows = sorted({(int(ex), int(ey)) for ex, ey in lat.e[:, :2]})
     row_src = "\n".join(" " * 8 + f"r_{_XS[ex]}_{_YS[ey]} = ({_XS[ex]} * ny + {_YS[ey]}) * nza" for ex, ey in rows)
 
@@ -416,11 +420,9 @@ def _sweep(s, {d_args},
 
 
 @njit(parallel=True, fastmath=True, cache=True, nogil=True, error_model="numpy", boundscheck=False)
-def stream_collide(src, dst, cols_x, cols_y, xm, xp, ym, yp, z0, z1, nzw, omega, omega_m, fx, fy, fz, nchunks,
-                   rho_min, tally):
+def stream_collide(src, dst, ny, nza, cols_x, cols_y, xm, xp, ym, yp, z0, z1, nzw, omega, omega_m, fx, fy, fz,
+                   nchunks, rho_min, tally):
     {nl4.join(setup)}
-    ny = src.shape[2]
-    nza = src.shape[3]
 {planes}
     # Periodic z: the pull at z = 0 (z = nzw - 1) reads z = -1 (z = nzw). With two spare slots
     # at the end of each row (Grid.alloc_z), these are the slot just before the row (the last
@@ -469,8 +471,10 @@ _LOADED: dict[KernelSpec, object] = {}
 def get_kernel(spec: KernelSpec):
     """The compiled ``stream_collide`` function for ``spec`` (generated and cached on first use).
 
-    Signature: ``stream_collide(src, dst, cols_x, cols_y, xm, xp, ym, yp, z0, z1, nzw, omega,
-    omega_m, fx, fy, fz) -> jz_sum``. ``src`` holds post-collision populations at time t (with
+    Signature: ``stream_collide(src, dst, ny, nza, cols_x, cols_y, xm, xp, ym, yp, z0, z1, nzw,
+    omega, omega_m, fx, fy, fz, nchunks, rho_min, tally) -> jz_sum``. ``src`` and ``dst`` are the
+    ``(q, plane stride)`` buffers of ``boundaries.plane_buffer`` (node ``(x, y, z)`` of plane ``i``
+    at ``[i, (x * ny + y) * nza + z]``); ``src`` holds post-collision populations at time t (with
     boundary ghost slots filled), ``dst`` receives those of t+1. ``omega_m`` is the odd-moment rate
     of TRT (ignored by BGK), ``f*`` the force density (ignored without forcing). ``jz_sum`` is the
     sum of ``rho u_z`` over the swept nodes when ``spec.flux`` (else 0). The kernel also writes

@@ -49,8 +49,8 @@ class Simulation:
         self.dtype = dtype_of(precision)
         q = self.lattice.q
         nx, ny, nz = grid.shape
-        self.f = np.zeros((q, nx, ny, grid.alloc_z), dtype=self.dtype)
-        self.f_next = np.zeros_like(self.f)
+        self.f = bnd.alloc_populations(q, grid, self.dtype)
+        self.f_next = bnd.alloc_populations(q, grid, self.dtype)
         self.last_flux = 0.0
         self.step_count = 0
         forcing = bool(np.any(self.force != 0.0)) or flux
@@ -73,8 +73,8 @@ class Simulation:
 
     @property
     def f2(self) -> np.ndarray:
-        """``f`` viewed as (q, nodes) for flat-index access by boundary fills."""
-        return self.f.reshape(self.lattice.q, -1)
+        """``f`` as (q, nodes) for flat-index access by boundary fills (``plane_buffer``)."""
+        return bnd.plane_buffer(self.f)
 
     def set_equilibrium(self, rho, u) -> None:
         """Set ``f`` to the equilibrium Eq. (3) of density ``rho`` and velocity ``u`` (scalars or
