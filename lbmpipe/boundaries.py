@@ -7,6 +7,12 @@ around its circular cross-section. z is the fastest axis in memory and (for the 
 of the pipe, so every (x, y) column is either wholly fluid or wholly solid and the fluid kernel
 sweeps only fluid columns.
 
+Memory. The populations are ``f[q, x, y, z]`` with each q-plane contiguous (``alloc_populations``):
+z rows of ``alloc_z`` slots (the kernel's z-halo), and planes ``plane_stride`` elements apart, a
+few cache lines more than a plane where that keeps the q planes out of each other's cache sets.
+Flat node ``n = (x * ny + y) * alloc_z + z`` (``Grid.flat``) of population ``i`` is
+``plane_buffer(f)[i, n]``, the 2-D form the boundary fills and particle passes take.
+
 Walls. Populations are never tested for walls inside the fluid sweep. Before each sweep a wall
 effect writes, into the slot of the solid node that a fluid node pulls from, the population that
 the wall sends back. For a link from fluid node ``x`` along ``e_i`` into solid node ``s = x + e_i``
