@@ -64,7 +64,8 @@ class StreamCollide(Effect):
         g = sim.grid
         fx, fy, fz = sim.force
         sim.last_flux = self.kernel(
-            bnd.plane_buffer(sim.f), bnd.plane_buffer(sim.f_next), g.shape[1], g.alloc_z, g.cols_x, g.cols_y, g.xm, g.xp, g.ym, g.yp, g.z0, g.z1, g.nzw,
+            bnd.plane_buffer(sim.f), bnd.plane_buffer(sim.f_next), g.shape[1], g.alloc_z,
+            g.cols_x, g.cols_y, g.xm, g.xp, g.ym, g.yp, g.z0, g.z1, g.nzw,
             sim.omega, sim.omega_minus, fx, fy, fz, sim.n_chunks, self.rho_min, self.tally,
         )
 

@@ -224,16 +224,18 @@ def test_power_of_two_box_gets_its_population_planes_in_distinct_cache_sets_and_
         sim.step(30)
         return sim
 
+    def distinct_l1_sets(f):  # of the planes' first elements (64-byte lines, 64 sets)
+        return len({(f[i].ctypes.data - f[0].ctypes.data) // 64 % 64 for i in range(lat.q)})
+
     padded = run()
     f = padded.f
-    starts = [(f[i].ctypes.data - f[0].ctypes.data) // 64 % 64 for i in range(lat.q)]
-    assert len(set(starts)) == lat.q
+    assert distinct_l1_sets(f) == lat.q
     buf = bnd.plane_buffer(f)
     assert buf.flags.c_contiguous and np.shares_memory(buf, f)
     assert buf[7, grid.flat(3, 5, 11)] == f[7, 3, 5, 11]
     monkeypatch.setattr(bnd, "plane_stride", lambda plane, itemsize, q: plane)
     plain = run()
     assert plain.f.flags.c_contiguous
-    assert len({(plain.f[i].ctypes.data - plain.f[0].ctypes.data) // 64 % 64 for i in range(lat.q)}) == 1
+    assert distinct_l1_sets(plain.f) == 1
     # the nodes (not the row padding, where the sweep keeps its z-halo) hold the same bits
     np.testing.assert_array_equal(padded.f[..., :16], plain.f[..., :16])
