@@ -1,3 +1,41 @@
 """lbmpipe: lattice Boltzmann reproduction of Ku & Lin (cylinders and cubes in a crowded pipe flow)."""
 
+import hashlib
+import os
+import sys
+from pathlib import Path
+
 __version__ = "0.1.0"
+
+
+def _numba_cache_by_source() -> None:
+    """Put numba's on-disk cache in a folder named after a hash of lbmpipe's sources, unless
+    ``NUMBA_CACHE_DIR`` is set.
+
+    Why: numba invalidates a cached function when *its own* source file changes, not when a
+    function it inlines from another module does. ``collisions.py`` compiles ``contact.py``'s GJK
+    into its own functions, so after an edit of ``contact.py`` the cached collision step would
+    keep running the old GJK, silently (it happened while timing a change to ``contact.py``).
+    With the folder keyed by every source file, any edit starts a fresh cache. Folders of earlier
+    versions stay in ``~/.cache/lbmpipe/numba`` (or ``$XDG_CACHE_HOME``) until removed by hand.
+    """
+    if os.environ.get("NUMBA_CACHE_DIR"):
+        return
+    digest = hashlib.sha256()
+    for path in sorted(Path(__file__).resolve().parent.glob("*.py")):
+        digest.update(path.name.encode())
+        digest.update(path.read_bytes())
+    root = Path(os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache")) / "lbmpipe" / "numba"
+    folder = root / digest.hexdigest()[:16]
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+    except OSError:
+        return  # not writable: numba's default (beside the sources) is still correct for a fresh checkout
+    os.environ["NUMBA_CACHE_DIR"] = str(folder)
+    if "numba" in sys.modules:  # numba read its settings at import: make it read them again
+        from numba.core import config
+
+        config.reload_config()
+
+
+_numba_cache_by_source()

@@ -81,7 +81,7 @@ import numpy as np
 from numba import njit, prange
 
 from .effects import Effect
-from .contact import (SCRATCH_SIZE, _support3, bodies_overlap_ws, body_contact_ws, bounding_radii, candidate_pairs,
+from .contact import (_support3, bodies_overlap_ws, body_contact_ws, bounding_radii, candidate_pairs,
                       new_scratch, pipe_wall_contact, plane_wall_contact)
 from .shapes import CYLINDER, SPHERE, bounding_radius
 from .rigid import Bodies, _qmul, quat_to_matrix, quat_to_matrices
@@ -675,7 +675,7 @@ def _apart_after(i, j, sh, axis, kind, h, x, v, wb, Rm, dt, x1, x2, R1, R2):
 
 @njit(cache=True)
 def _test_scratch():
-    return np.empty(SCRATCH_SIZE), np.empty(3), np.empty(3), np.empty(3), np.empty(3), np.empty((3, 3)), np.empty((3, 3))
+    return new_scratch(), np.empty(3), np.empty(3), np.empty(3), np.empty(3), np.empty((3, 3)), np.empty((3, 3))
 
 
 @njit(cache=True)

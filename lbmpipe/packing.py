@@ -48,7 +48,7 @@ import time
 import numpy as np
 from numba import njit
 
-from .contact import body_contact, candidate_pairs, pipe_wall_contact
+from .contact import body_contact_ws, candidate_pairs, new_scratch, pipe_wall_contact
 from .rigid import quat_to_matrix, random_quaternions
 from .shapes import CUBE, CYLINDER, SPHERE, bounding_radius, principal_inertia, volume
 
@@ -218,6 +218,7 @@ def _relax_sweeps(kind, h, x, q, iinv, radius, lo, hi, periodic, push, nsweeps, 
     c = np.empty(3)
     x2 = np.empty(3)
     tb = np.empty(3)
+    ws = new_scratch()  # once, not per pair: a scratch is 18 small arrays
     worst = 0.0
     for _sw in range(nsweeps):
         worst = 0.0
@@ -227,7 +228,7 @@ def _relax_sweeps(kind, h, x, q, iinv, radius, lo, hi, periodic, push, nsweeps, 
             j = pj[m]
             for k in range(3):
                 x2[k] = x[j, k] + ps[m, k]
-            g = body_contact(kind, h, x[i], Rm[i], kind, h, x2, Rm[j], 0.0, MANIFOLD_TOL, nrm, c)
+            g = body_contact_ws(kind, h, x[i], Rm[i], kind, h, x2, Rm[j], 0.0, MANIFOLD_TOL, nrm, c, ws)
             if g >= 0.0:
                 continue
             worst = max(worst, -g)
@@ -262,6 +263,7 @@ def _max_overlap(kind, h, x, q, radius, lo, hi, periodic):
     nrm = np.empty(3)
     c = np.empty(3)
     x2 = np.empty(3)
+    ws = new_scratch()
     worst = 0.0
     pi, pj, ps = candidate_pairs(x, np.full(n, rb), 0.0, lo, hi, periodic)
     for m in range(pi.shape[0]):
@@ -269,7 +271,7 @@ def _max_overlap(kind, h, x, q, radius, lo, hi, periodic):
         j = pj[m]
         for k in range(3):
             x2[k] = x[j, k] + ps[m, k]
-        g = body_contact(kind, h, x[i], Rm[i], kind, h, x2, Rm[j], 0.0, MANIFOLD_TOL, nrm, c)
+        g = body_contact_ws(kind, h, x[i], Rm[i], kind, h, x2, Rm[j], 0.0, MANIFOLD_TOL, nrm, c, ws)
         worst = max(worst, -g)
     for i in range(n):
         if math.sqrt(x[i, 0] ** 2 + x[i, 1] ** 2) + rb < radius:

@@ -1,0 +1,44 @@
+"""Numba's on-disk cache follows lbmpipe's sources (``lbmpipe/__init__.py``): numba alone would
+keep a cached function that inlines code from an edited module."""
+
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import lbmpipe
+
+PACKAGE = Path(lbmpipe.__file__).resolve().parent
+
+_PROBE = ("import numba, lbmpipe, os; from numba.core import config; "
+          "print(os.environ['NUMBA_CACHE_DIR']); print(config.CACHE_DIR)")
+
+
+def _cache_folder(root: Path, cache_home: Path) -> str:
+    env = {k: v for k, v in os.environ.items() if k != "NUMBA_CACHE_DIR"}
+    env.update(XDG_CACHE_HOME=str(cache_home), PYTHONPATH=str(root))
+    out = subprocess.run([sys.executable, "-c", _PROBE], env=env, cwd=root, check=True, capture_output=True,
+                         text=True).stdout.split()
+    # numba imported before lbmpipe still uses the folder
+    assert out[0] == out[1], out
+    return out[0]
+
+
+def test_an_edit_of_any_module_gives_numba_a_fresh_cache_folder(tmp_path):
+    copy = tmp_path / "src"
+    shutil.copytree(PACKAGE, copy / "lbmpipe", ignore=shutil.ignore_patterns("__pycache__"))
+    home = tmp_path / "cache"
+    first = _cache_folder(copy, home)
+    assert Path(first).parent == home / "lbmpipe" / "numba" and Path(first).is_dir()
+    assert _cache_folder(copy, home) == first  # same sources, same folder: the cache is reused
+    contact = copy / "lbmpipe" / "contact.py"
+    contact.write_text(contact.read_text() + "\n# edited\n")
+    assert _cache_folder(copy, home) != first
+
+
+def test_an_explicit_numba_cache_dir_is_left_alone(tmp_path):
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / "mine"))
+    out = subprocess.run([sys.executable, "-c", _PROBE], env=env, check=True, capture_output=True,
+                         text=True).stdout.split()
+    assert out == [str(tmp_path / "mine")] * 2
