@@ -8,6 +8,12 @@ from pathlib import Path
 __version__ = "0.1.0"
 
 
+def cache_root() -> Path:
+    """``$XDG_CACHE_HOME/lbmpipe`` (default ``~/.cache/lbmpipe``): numba's cache and the generated
+    kernels live under it."""
+    return Path(os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache")) / "lbmpipe"
+
+
 def _numba_cache_by_source() -> None:
     """Put numba's on-disk cache in a folder named after a hash of lbmpipe's sources, unless
     ``NUMBA_CACHE_DIR`` is set.
@@ -25,8 +31,7 @@ def _numba_cache_by_source() -> None:
     for path in sorted(Path(__file__).resolve().parent.glob("*.py")):
         digest.update(path.name.encode())
         digest.update(path.read_bytes())
-    root = Path(os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache")) / "lbmpipe" / "numba"
-    folder = root / digest.hexdigest()[:16]
+    folder = cache_root() / "numba" / digest.hexdigest()[:16]
     try:
         folder.mkdir(parents=True, exist_ok=True)
     except OSError:

@@ -67,6 +67,7 @@ from numba.core.compiler import CompilerBase, DefaultPassBuilder
 from numba.core.compiler_machinery import register_pass
 from numba.core.typed_passes import NativeLowering
 
+from . import cache_root
 from .lattice import Lattice, get_lattice
 
 GENERATOR_VERSION = "7"
@@ -462,7 +463,7 @@ def cache_dir() -> Path:
     root = os.environ.get("LBMPIPE_CACHE_DIR")
     if root:
         return Path(root)
-    return Path(os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache")) / "lbmpipe" / "kernels"
+    return cache_root() / "kernels"
 
 
 _LOADED: dict[KernelSpec, object] = {}
