@@ -14,6 +14,24 @@ def cache_root() -> Path:
     return Path(os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache")) / "lbmpipe"
 
 
+#: a numba cache folder of another source version unused this long is removed (a checkout of
+#: that version run again recompiles once)
+_CACHE_KEEP_DAYS = 14
+
+
+def _prune_stale(current: Path) -> None:
+    import shutil
+    import time
+
+    limit = time.time() - _CACHE_KEEP_DAYS * 86400.0
+    try:
+        for other in current.parent.iterdir():
+            if other != current and other.is_dir() and other.stat().st_mtime < limit:
+                shutil.rmtree(other, ignore_errors=True)
+    except OSError:
+        pass  # a cache that cannot be listed is left as it is
+
+
 def _numba_cache_by_source() -> None:
     """Put numba's on-disk cache in a folder named after a hash of lbmpipe's sources, unless
     ``NUMBA_CACHE_DIR`` is set.
@@ -22,8 +40,9 @@ def _numba_cache_by_source() -> None:
     function it inlines from another module does. ``collisions.py`` compiles ``contact.py``'s GJK
     into its own functions, so after an edit of ``contact.py`` the cached collision step would
     keep running the old GJK, silently (it happened while timing a change to ``contact.py``).
-    With the folder keyed by every source file, any edit starts a fresh cache. Folders of earlier
-    versions stay in ``~/.cache/lbmpipe/numba`` (or ``$XDG_CACHE_HOME``) until removed by hand.
+    With the folder keyed by every source file, any edit starts a fresh cache. Each import marks
+    its folder as used; folders of other source versions unused for ``_CACHE_KEEP_DAYS`` are
+    removed (each holds 10-40 MB, and every edit of the package makes one).
     """
     if os.environ.get("NUMBA_CACHE_DIR"):
         return
@@ -34,8 +53,10 @@ def _numba_cache_by_source() -> None:
     folder = cache_root() / "numba" / digest.hexdigest()[:16]
     try:
         folder.mkdir(parents=True, exist_ok=True)
+        os.utime(folder)
     except OSError:
         return  # not writable: numba's default (beside the sources) is still correct for a fresh checkout
+    _prune_stale(folder)
     os.environ["NUMBA_CACHE_DIR"] = str(folder)
     if "numba" in sys.modules:  # numba read its settings at import: make it read them again
         from numba.core import config

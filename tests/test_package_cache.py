@@ -5,6 +5,7 @@ import os
 import shutil
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import lbmpipe
@@ -42,3 +43,16 @@ def test_an_explicit_numba_cache_dir_is_left_alone(tmp_path):
     out = subprocess.run([sys.executable, "-c", _PROBE], env=env, check=True, capture_output=True,
                          text=True).stdout.split()
     assert out == [str(tmp_path / "mine")] * 2
+
+
+def test_cache_folders_of_other_source_versions_unused_for_two_weeks_are_removed(tmp_path):
+    home = tmp_path / "cache"
+    numba_dir = home / "lbmpipe" / "numba"
+    old, recent = numba_dir / "0000000000000000", numba_dir / "1111111111111111"
+    for folder, age_days in ((old, lbmpipe._CACHE_KEEP_DAYS + 1), (recent, lbmpipe._CACHE_KEEP_DAYS - 1)):
+        (folder / "x").mkdir(parents=True)
+        t = time.time() - age_days * 86400
+        os.utime(folder, (t, t))
+    current = Path(_cache_folder(PACKAGE.parent, home))
+    assert current.is_dir() and current.stat().st_mtime > time.time() - 3600  # marked as used
+    assert not old.exists() and recent.is_dir()
