@@ -1188,46 +1188,40 @@ def wall_exchange(f2, owner, fluid, solid, i, opp, ez):
 
 
 @njit(parallel=True, cache=True)
-def _fluid_momentum(f2, owner, e):
+def _fluid_sums(f2, owner, e, nsum):
+    """The first ``nsum`` of (mass, px, py, pz) over the fluid nodes, in fixed chunks (the same bits
+    on any thread count; the mass has the same bits for either ``nsum``). The mass correction asks
+    for the mass alone: one stream of additions instead of four, half the time."""
     n = owner.shape[0]
     Q = e.shape[0]
     nchunk = 64
     part = np.zeros((nchunk, 4))
     for c in prange(nchunk):
-        lo = c * n // nchunk
-        hi = (c + 1) * n // nchunk
-        for node in range(lo, hi):
-            if owner[node] != FLUID:
-                continue
-            for i in range(Q):
-                fv = f2[i, node]
-                part[c, 0] += fv
-                part[c, 1] += e[i, 0] * fv
-                part[c, 2] += e[i, 1] * fv
-                part[c, 3] += e[i, 2] * fv
-    total = np.empty(4)
-    for a in range(4):
-        total[a] = ordered_sum(part[:, a])
-    return total
-
-
-@njit(parallel=True, cache=True)
-def _fluid_mass(f2, owner):
-    # _fluid_momentum's mass alone, in the same chunks and order (the same bits): one stream of
-    # additions instead of four, half the time (the mass correction's sum)
-    n = owner.shape[0]
-    Q = f2.shape[0]
-    nchunk = 64
-    part = np.zeros(nchunk)
-    for c in prange(nchunk):
-        acc = 0.0
+        a0 = 0.0
+        a1 = 0.0
+        a2 = 0.0
+        a3 = 0.0
         for node in range(c * n // nchunk, (c + 1) * n // nchunk):
             if owner[node] != FLUID:
                 continue
-            for i in range(Q):
-                acc += f2[i, node]
-        part[c] = acc
-    return ordered_sum(part)
+            if nsum == 1:
+                for i in range(Q):
+                    a0 += f2[i, node]
+            else:
+                for i in range(Q):
+                    fv = f2[i, node]
+                    a0 += fv
+                    a1 += e[i, 0] * fv
+                    a2 += e[i, 1] * fv
+                    a3 += e[i, 2] * fv
+        part[c, 0] = a0
+        part[c, 1] = a1
+        part[c, 2] = a2
+        part[c, 3] = a3
+    total = np.empty(nsum)
+    for a in range(nsum):
+        total[a] = ordered_sum(part[:, a])
+    return total
 
 
 # ----------------------------------------------------------------------------------------------
@@ -1464,11 +1458,11 @@ class ParticleSystem:
 
     def fluid_momentum(self, f2) -> np.ndarray:
         """(mass, px, py, pz) of the fluid nodes of ``f2`` (post-collision populations)."""
-        return _fluid_momentum(f2, self.owner, self.e)
+        return _fluid_sums(f2, self.owner, self.e, 4)
 
     def fluid_mass(self, f2) -> float:
         """Mass of the fluid nodes of ``f2``: ``fluid_momentum(f2)[0]``, bit for bit."""
-        return _fluid_mass(f2, self.owner)
+        return float(_fluid_sums(f2, self.owner, self.e, 1)[0])
 
     def total_momentum(self, f2) -> np.ndarray:
         """Fluid + particle momentum (3,), with the impulses not yet applied to the particles."""
