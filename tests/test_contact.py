@@ -291,3 +291,23 @@ def test_scalar_support_point_is_bit_identical_to_shapes_support_body():
                 expect = [x[k] + R[k, 0] * body[0] + R[k, 1] * body[1] + R[k, 2] * body[2] for k in range(3)]
                 got = _support3(kind, np.asarray(h), x, R, False, d[0], d[1], d[2])
                 assert list(got) == expect
+
+
+def test_rim_sample_table_is_bit_identical_to_the_trigonometry_it_replaces():
+    # pipe_wall_contact samples each cylinder rim from a table of cos and sin; the table must hold
+    # exactly what numba's math.cos and math.sin give at those angles, or the gaps (and every
+    # committed result) would change in the last bits
+    from numba import njit
+
+    from lbmpipe.contact import _RIM_COS, _RIM_SIN, RIM_SAMPLES
+
+    @njit
+    def trig(n):
+        out = np.empty((2, n))
+        for s in range(n):
+            out[0, s] = math.cos(2.0 * math.pi * s / n)
+            out[1, s] = math.sin(2.0 * math.pi * s / n)
+        return out
+
+    expect = trig(RIM_SAMPLES)
+    assert _RIM_COS.tobytes() == expect[0].tobytes() and _RIM_SIN.tobytes() == expect[1].tobytes()
