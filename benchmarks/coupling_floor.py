@@ -35,7 +35,6 @@ import sys
 import time
 from pathlib import Path
 
-import numba
 import numpy as np
 from numba import njit
 
@@ -60,17 +59,9 @@ def _capture(fl, lo, hi, src_off, owner_k, acc):
 def _links(ps, plane, grid):
     """Live links as flat offsets into the (q, plane) buffer, sorted by the sweep's column order."""
     ny, az = grid.shape[1], grid.alloc_z
-    xs, ss, ii, kk = [], [], [], []
-    for k in range(ps.n):
-        for i in range(1, ps.e.shape[0]):
-            b0, n0 = ps.lbase[k, i], ps.lcnt[k, i]
-            ln = ps.LN[b0:b0 + n0].astype(np.int64)
-            live = (ps.owner[ln[:, 1]] == k) & (ps.owner[ln[:, 0]] == -1)
-            xs.append(ln[live, 0])
-            ss.append(ln[live, 1])
-            ii.append(np.full(int(live.sum()), i))
-            kk.append(np.full(int(live.sum()), k))
-    xs, ss, ii, kk = (np.concatenate(a).astype(np.int64) for a in (xs, ss, ii, kk))
+    per = [ps.links(k)[:3] for k in range(ps.n)]  # (fluid node, particle node, direction), live only
+    xs, ss, ii = (np.concatenate([p[a] for p in per]) for a in range(3))
+    kk = np.concatenate([np.full(len(p[0]), k) for k, p in enumerate(per)])
     colmap = np.full(grid.shape[0] * ny, -1, np.int64)
     colmap[grid.cols_x * ny + grid.cols_y] = np.arange(len(grid.cols_x))
     col = colmap[xs // az]

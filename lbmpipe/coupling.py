@@ -1630,10 +1630,10 @@ class MassCorrection(fx.Effect):
         self.calls += 1
         f2 = plane_buffer(sim.f_next)
         if self.rho_target is None:
-            self.rho_target = float(s.fluid_mass(f2)) / max(s.n_fluid, 1)
+            self.rho_target = s.fluid_mass(f2) / max(s.n_fluid, 1)
         if self.calls % self.every:
             return
-        mass = float(s.fluid_mass(f2))
+        mass = s.fluid_mass(f2)
         n = int(s.n_fluid)
         d_rho = self.rho_target - mass / max(n, 1)
         _add_density(f2, s.owner, s.w, d_rho)
