@@ -365,3 +365,43 @@ def fmt_bytes(b: float) -> str:
             return f"{b:.0f} {unit}" if unit == "B" else f"{b:.1f} {unit}"
         b /= 1024
     return f"{b:.1f} GiB"
+
+
+# --------------------------------------------------------------------------------------------
+# the fluid sweep alone, as the yardstick of the "floor" scripts
+
+
+@dataclass
+class SweepOnly:
+    """The stream + collide kernel of a built ``Simulation``, on copies of its populations so that
+    timing it changes nothing in the run: ``sweep_cols(a, b)`` sweeps columns ``a:b``; ``bounds``
+    are the simulation's own column chunks, and ``run()`` sweeps them all, one after another (one
+    core: each call is one chunk). ``src``/``dst`` are the (q, plane) buffers it reads and writes."""
+
+    sim: object
+    src: np.ndarray = field(init=False)
+    dst: np.ndarray = field(init=False)
+    bounds: list = field(init=False)
+
+    def __post_init__(self):
+        from lbmpipe import boundaries as bnd
+        from lbmpipe.effects import StreamCollide
+
+        self._sweep = next(e for e in self.sim.effects if isinstance(e, StreamCollide))
+        self.src = bnd.plane_buffer(self.sim.f).copy()
+        self.dst = bnd.plane_buffer(self.sim.f_next).copy()
+        g = self.sim.grid
+        ncol, nch = len(g.cols_x), self.sim.n_chunks
+        self.bounds = [(k * ncol // nch, (k + 1) * ncol // nch) for k in range(nch)]
+        self._tally = np.zeros(2)
+
+    def sweep_cols(self, a: int, b: int) -> None:
+        s, g = self.sim, self.sim.grid
+        fx, fy, fz = s.force
+        self._sweep.kernel(self.src, self.dst, g.shape[1], g.alloc_z, g.cols_x[a:b], g.cols_y[a:b], g.xm, g.xp, g.ym,
+                           g.yp, g.z0, g.z1, g.nzw, s.omega, s.omega_minus, fx, fy, fz, 1, self._sweep.rho_min,
+                           self._tally)
+
+    def run(self) -> None:
+        for a, b in self.bounds:
+            self.sweep_cols(a, b)

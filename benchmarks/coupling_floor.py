@@ -40,7 +40,7 @@ from numba import njit
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "benchmarks"))
-from _common import machine_info, set_threads  # noqa: E402
+from _common import SweepOnly, machine_info, set_threads  # noqa: E402
 from particles import build  # noqa: E402
 
 
@@ -81,33 +81,20 @@ def main(argv=None) -> int:
     set_threads(1)
     sim, info = build("cubes")
     sim.step(args.warmup)
-    from lbmpipe import boundaries as bnd
-    from lbmpipe.effects import StreamCollide
-
     ps, g = sim.particles, sim.grid
-    sweep = next(e for e in sim.effects if isinstance(e, StreamCollide))
-    src = bnd.plane_buffer(sim.f).copy()
-    dst = bnd.plane_buffer(sim.f_next).copy()
-    plane = src.shape[1]
+    sweep = SweepOnly(sim)
+    plane = sweep.src.shape[1]
     L = _links(ps, plane, g)
     n_links = len(L["col"])
-    fs, fd = src.reshape(-1), dst.reshape(-1)
+    fs, fd = sweep.src.reshape(-1), sweep.dst.reshape(-1)
     c = 1e-3 * np.ones(n_links)
     acc = np.zeros(ps.n)
     nch = sim.n_chunks
     ncol = len(g.cols_x)
-    bounds = [(k * ncol // nch, (k + 1) * ncol // nch) for k in range(nch)]
+    bounds = sweep.bounds
     lbound = np.searchsorted(L["col"], [b[0] for b in bounds] + [ncol])
-    tally = np.zeros(2)
-    fx, fy, fz = sim.force
-
-    def sweep_cols(a, b):
-        sweep.kernel(src, dst, g.shape[1], g.alloc_z, g.cols_x[a:b], g.cols_y[a:b], g.xm, g.xp, g.ym, g.yp,
-                     g.z0, g.z1, g.nzw, sim.omega, sim.omega_minus, fx, fy, fz, 1, sweep.rho_min, tally)
-
-    def plain():
-        for a, b in bounds:
-            sweep_cols(a, b)
+    sweep_cols = sweep.sweep_cols
+    plain = sweep.run
 
     def separate():
         plain()

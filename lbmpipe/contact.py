@@ -365,8 +365,16 @@ def _gjk(k1, h1, x1, R1, c1, k2, h2, x2, R2, c2, scale, max_gap, W, WA, WB, lam,
         v[k] = x1[k] - x2[k]
     if _dot(v, v) <= (1e-12 * scale) ** 2:
         v[0], v[1], v[2] = scale, 0.0, 0.0
+    return _gjk_from(k1, h1, x1, R1, c1, k2, h2, x2, R2, c2, scale, max_gap, GJK_REL_TOL, W, WA, WB, lam, pa, pb, v)
+
+
+@njit(cache=True)
+def _gjk_from(k1, h1, x1, R1, c1, k2, h2, x2, R2, c2, scale, max_gap, rel_tol, W, WA, WB, lam, pa, pb, v):
+    """``_gjk`` from the search direction in ``v`` (nonzero), stopping when the gap is bracketed
+    to ``rel_tol * scale``. ``benchmarks/collision_floor.py`` starts it from the converged normal
+    to time the fewest iterations GJK can take on a contact."""
     n = 0
-    tol = GJK_REL_TOL * scale
+    tol = rel_tol * scale
     for _it in range(GJK_MAX_ITER):
         sa0, sa1, sa2 = _support3(k1, h1, x1, R1, c1, -v[0], -v[1], -v[2])
         sb0, sb1, sb2 = _support3(k2, h2, x2, R2, c2, v[0], v[1], v[2])
