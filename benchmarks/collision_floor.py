@@ -1,4 +1,4 @@
-"""The least the collision step can cost with GJK on issue 4's case, against the fluid sweep: a floor, not physics.
+"""The least GJK detection and impulses can cost on issue 4's case, against the sweep: a floor, not physics.
 
 The case is ``cyl8x8_c50`` of ``benchmarks/collisions.py``: the paper's pipe at dx = 1 mm with 244
 cylinders of 8 x 8 mm (50 %), after ``--warmup`` coupled steps with collisions. At that state the
@@ -28,7 +28,7 @@ closed form could take is on record.
 
 For scale it also times lbmpipe's own work on the same state:
 
-* ``narrow phase``: ``body_contact_ws`` on the same pairs (gap, normal, contact-patch point);
+* ``narrow phase``: ``_measure_pair`` on the same pairs (gap, normal, contact-patch point);
 * ``collision step``: the whole ``resolve_collisions`` (broad and narrow phase, speculative
   contacts, impulses, projection), on a copy of the bodies.
 
@@ -55,12 +55,17 @@ sys.path.insert(0, str(ROOT / "benchmarks"))
 from _common import SweepOnly, machine_info, set_threads  # noqa: E402
 from collisions import scene_dict  # noqa: E402
 
-from lbmpipe.collisions import _NG, CollisionEffect, _gs_sweep, _impulse_terms, resolve_collisions  # noqa: E402
+from lbmpipe.collisions import (  # noqa: E402
+    _NG,
+    CollisionEffect,
+    _gs_sweep,
+    _impulse_terms,
+    _measure_pair,
+    resolve_collisions,
+)  # noqa: E402
 from lbmpipe.contact import (  # noqa: E402
-    _gjk,
     _gjk_from,
     _gjk_scratch,
-    body_contact_ws,
     bounding_radii,
     candidate_pairs,
     new_scratch,
@@ -79,14 +84,7 @@ def _measure(kind, h, x, Rm, pi, pj, ps, max_gap, manifold_tol, g, nn, cc):
     c = np.empty(3)
     x2 = np.empty(3)
     for m in range(pi.shape[0]):
-        i = pi[m]
-        j = pj[m]
-        for k in range(3):
-            x2[k] = x[j, k] + ps[m, k]
-        g[m] = body_contact_ws(kind[i], h[i], x[i], Rm[i], kind[j], h[j], x2, Rm[j], max_gap, manifold_tol, nrm, c, ws)
-        for k in range(3):
-            nn[m, k] = nrm[k]
-            cc[m, k] = c[k]
+        _measure_pair(pi[m], pj[m], m, ps, kind, h, x, Rm, max_gap, manifold_tol, g, nn, cc, ws, nrm, c, x2)
 
 
 @njit(cache=True)
@@ -101,9 +99,11 @@ def _walls(kind, h, x, Rm, Rp, cx, cy, manifold_tol, g, nn, cc):
 
 
 @njit(cache=True)
-def _detect_warm(kind, h, x, Rm, rb, pi, pj, ps, nn, rel_tol, gap):
+def _detect_warm(kind, h, x, Rm, rb, pi, pj, ps, nn, rel_tol, gap, rz, features):
     """GJK on each pair from its converged normal (the search direction is body 1 - body 2, so
-    -normal), stopped at ``rel_tol`` of the size; only the gap."""
+    -normal), stopped at ``rel_tol`` of the size; only the gap. With ``features``, also where each
+    body's witness point lies, in body-frame cylinder coordinates: rz[m, b] = (radius, |axial
+    coordinate|) for body b = 0, 1."""
     ws = new_scratch()
     W, WA, WB, lam, pa, pb, v = _gjk_scratch(ws)
     x2 = np.empty(3)
@@ -116,21 +116,8 @@ def _detect_warm(kind, h, x, Rm, rb, pi, pj, ps, nn, rel_tol, gap):
         st, d, n = _gjk_from(kind[i], h[i], x[i], Rm[i], False, kind[j], h[j], x2, Rm[j], False, rb[i] + rb[j], np.inf,
                              rel_tol, W, WA, WB, lam, pa, pb, v)
         gap[m] = d if st == 0 else 0.0
-
-
-@njit(cache=True)
-def _witness_features(kind, h, x, Rm, pi, pj, ps, out):
-    """Where the GJK witness point of each body of each pair lies, in body-frame cylinder
-    coordinates: out[m, b] = (radius, |axial coordinate|) for body b = 0, 1."""
-    ws = new_scratch()
-    W, WA, WB, lam, pa, pb, v = _gjk_scratch(ws)
-    x2 = np.empty(3)
-    for m in range(pi.shape[0]):
-        i = pi[m]
-        j = pj[m]
-        for k in range(3):
-            x2[k] = x[j, k] + ps[m, k]
-        _gjk(kind[i], h[i], x[i], Rm[i], False, kind[j], h[j], x2, Rm[j], False, 1.0, np.inf, W, WA, WB, lam, pa, pb, v)
+        if not features:
+            continue
         for b in range(2):
             body = i if b == 0 else j
             xb = x[i] if b == 0 else x2
@@ -139,17 +126,17 @@ def _witness_features(kind, h, x, Rm, pi, pj, ps, out):
             s1 = 0.0
             s2 = 0.0
             for k in range(3):
-                d = w[k] - xb[k]
-                s0 += Rm[body, k, 0] * d
-                s1 += Rm[body, k, 1] * d
-                s2 += Rm[body, k, 2] * d
-            out[m, b, 0] = np.sqrt(s0 * s0 + s1 * s1)
-            out[m, b, 1] = abs(s2)
+                dk = w[k] - xb[k]
+                s0 += Rm[body, k, 0] * dk
+                s1 += Rm[body, k, 1] * dk
+                s2 += Rm[body, k, 2] * dk
+            rz[m, b, 0] = np.sqrt(s0 * s0 + s1 * s1)
+            rz[m, b, 1] = abs(s2)
 
 
 def _feature_counts(h1, h2, rz, tol=1e-6) -> dict:
     """Closest-feature pairs (side, cap, rim) of cylinder pairs (shape parameters h1, h2: radius,
-    -, half length) from ``_witness_features``."""
+    -, half length) from ``_detect_warm``'s witness coordinates."""
     names = []
     for m in range(rz.shape[0]):
         f = []
@@ -221,7 +208,7 @@ def main(argv=None) -> int:
     near = np.flatnonzero(g <= gap_max)
     qi, qj, qs, qn, qc = pi[near], pj[near], ps[near], nn[near], cc[near]
     rz = np.empty((len(near), 2, 2))
-    _witness_features(b.kind, b.h, b.x, Rm, qi, qj, qs, rz)
+    _detect_warm(b.kind, b.h, b.x, Rm, rb, qi, qj, qs, qn, 1e-9, np.empty(len(near)), rz, True)
     features = _feature_counts(b.h[qi], b.h[qj], rz)
     wg = np.empty(b.n)
     wn = np.empty((b.n, 3))
@@ -246,7 +233,7 @@ def main(argv=None) -> int:
     saved = {f: getattr(b, f).copy() for f in ("x", "v", "q", "wb")}
 
     def detection():
-        _detect_warm(b.kind, b.h, b.x, Rm, rb, qi, qj, qs, qn, WARM_REL_TOL, gw)
+        _detect_warm(b.kind, b.h, b.x, Rm, rb, qi, qj, qs, qn, WARM_REL_TOL, gw, rz, False)
 
     def response():
         v, wb = v0.copy(), w0.copy()
