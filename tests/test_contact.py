@@ -161,6 +161,121 @@ def test_overlap_test_without_epa_agrees_with_the_sign_of_the_gap_for_random_pai
     assert 80 <= n_overlap <= 320  # both sides were exercised
 
 
+def _gjk_gap(h1, x1, R1, h2, x2, R2):
+    """Gap and unit normal of two separated cylinders by GJK alone (the reference for the exact
+    path, which body_contact now takes for cylinder pairs)."""
+    from lbmpipe.contact import _gjk, _gjk_scratch
+
+    W, WA, WB, lam, pa, pb, v = _gjk_scratch(new_scratch())
+    scale = math.hypot(h1[0], h1[2]) + math.hypot(h2[0], h2[2])
+    st, dist, _ = _gjk(CYLINDER, h1, x1, R1, False, CYLINDER, h2, x2, R2, False, scale, np.inf, W, WA, WB, lam, pa, pb,
+                       v)
+    return (dist if st == 0 else -1.0), -v / np.linalg.norm(v)
+
+
+def _on_cylinder_surface(p, h, x, R, tol):
+    s = R.T @ (p - x)
+    r, z = math.hypot(s[0], s[1]), abs(s[2])
+    return (r <= h[0] + tol and z <= h[2] + tol) and (abs(r - h[0]) <= tol or abs(z - h[2]) <= tol)
+
+
+@pytest.mark.parametrize("shapes", [((4.0, 4.0), (4.0, 4.0)), ((8.0, 8.0), (8.0, 12.0)), ((4.0, 4.0), (8.0, 12.0))])
+def test_exact_cylinder_gap_equals_gjk_for_random_separated_pairs_of_the_paper_shapes(shapes):
+    # (radius, half length) of the paper's 8x8, 16x16 and 16x24 mm cylinders at dx = 1 mm
+    from lbmpipe.contact import cylinder_gap_exact
+
+    rng = np.random.default_rng(7)
+    h1, h2 = (np.array([r, r, l]) for r, l in shapes)
+    reach = math.hypot(*shapes[0]) + math.hypot(*shapes[1])
+    nrm, pa, pb = np.empty(3), np.empty(3), np.empty(3)
+    separated = certified = 0
+    for _ in range(1500):
+        q = random_quaternions(2, rng)
+        if rng.random() < 0.2:
+            q[1] = q[0]  # parallel axes: side on side and cap on cap, flat patches
+        R1, R2 = quat_to_matrix(q[0]), quat_to_matrix(q[1])
+        d = rng.standard_normal(3)
+        x2 = d / np.linalg.norm(d) * rng.uniform(0.45, 1.0) * reach
+        ref, n_ref = _gjk_gap(h1, np.zeros(3), R1, h2, x2, R2)
+        if ref <= 1e-6:
+            continue
+        separated += 1
+        g = cylinder_gap_exact(h1, np.zeros(3), R1, h2, x2, R2, nrm, pa, pb)
+        if g < 0.0:
+            continue  # no certificate: the caller falls back to GJK
+        certified += 1
+        assert g == pytest.approx(ref, abs=1e-8 * reach)
+        assert np.linalg.norm(pb - pa) == pytest.approx(g, rel=1e-12)
+        assert _on_cylinder_surface(pa, h1, np.zeros(3), R1, 1e-9 * reach)
+        assert _on_cylinder_surface(pb, h2, x2, R2, 1e-9 * reach)
+        np.testing.assert_allclose(nrm, (pb - pa) / g, atol=1e-12)
+        # GJK's normal is the less accurate of the two on curved surfaces (~sqrt of its gap error)
+        assert float(nrm @ n_ref) > math.cos(1e-3)
+    assert separated > 300
+    assert certified >= 0.98 * separated
+
+
+def test_exact_cylinder_gap_of_crossed_sides_a_cap_under_a_tilted_rim_and_two_rims():
+    from lbmpipe.contact import cylinder_gap_exact
+
+    h = np.array([1.0, 1.0, 2.0])
+    nrm, pa, pb = np.empty(3), np.empty(3), np.empty(3)
+    # sides: axes along x and y, 3 apart along z: gap 3 - 2 radii, normal +z, points on the axes' line
+    Rx = quat_to_matrix(_rot([0.0, 1.0, 0.0], math.pi / 2))
+    Ry = quat_to_matrix(_rot([1.0, 0.0, 0.0], math.pi / 2))
+    assert cylinder_gap_exact(h, np.zeros(3), Rx, h, np.array([0.3, -0.4, 3.0]), Ry, nrm, pa, pb) == pytest.approx(1.0, abs=1e-14)
+    np.testing.assert_allclose(nrm, [0.0, 0.0, 1.0], atol=1e-14)
+    np.testing.assert_allclose(pa, [0.3, 0.0, 1.0], atol=1e-14)
+    np.testing.assert_allclose(pb, [0.3, 0.0, 2.0], atol=1e-14)
+    # rim over a cap: body 2 tilted by a about x above the upright body 1's top cap; its lowest
+    # point is the rim point at height z2 - l cos a - r sin a
+    a = 0.3
+    Rt = quat_to_matrix(_rot([1.0, 0.0, 0.0], a))
+    z2 = 5.0
+    g = cylinder_gap_exact(h, np.zeros(3), np.eye(3), h, np.array([0.1, 0.2, z2]), Rt, nrm, pa, pb)
+    assert g == pytest.approx(z2 - 2.0 - 2.0 * math.cos(a) - math.sin(a), abs=1e-13)
+    np.testing.assert_allclose(nrm, [0.0, 0.0, 1.0], atol=1e-14)
+    # two rims: equal cylinders tilted by +-a about y, side by side along x and mirrored in the
+    # plane x = d/2, their caps facing up: by symmetry the closest points are the two rim points
+    # nearest that plane, at the same height, so the gap is d - 2 (l sin a + r cos a)
+    a = 0.6
+    d = 2.0 * (2.0 * math.sin(a) + math.cos(a)) + 0.25
+    R1 = quat_to_matrix(_rot([0.0, 1.0, 0.0], a))
+    R2 = quat_to_matrix(_rot([0.0, 1.0, 0.0], -a))
+    g = cylinder_gap_exact(h, np.zeros(3), R1, h, np.array([d, 0.0, 0.0]), R2, nrm, pa, pb)
+    assert g == pytest.approx(0.25, abs=1e-12)
+    np.testing.assert_allclose(nrm, [1.0, 0.0, 0.0], atol=1e-12)
+    # overlapping bodies get no certificate (GJK/EPA measure the depth)
+    assert cylinder_gap_exact(h, np.zeros(3), Rx, h, np.array([0.0, 0.0, 1.5]), Ry, nrm, pa, pb) == -1.0
+
+
+def test_exact_cylinder_overlap_test_never_contradicts_gjk_and_settles_almost_every_pair():
+    # the time-of-impact bisection asks "do they overlap?" of cylinder pairs near touching; the
+    # exact test answers from a point inside the other body or a separating direction, else -1
+    from lbmpipe.contact import _gjk, _gjk_scratch, cylinders_overlap_exact
+
+    rng = np.random.default_rng(3)
+    W, WA, WB, lam, pa, pb, v = _gjk_scratch(new_scratch())
+    answers = {1: 0, 0: 0, -1: 0}
+    for shapes in (((4.0, 4.0), (4.0, 4.0)), ((4.0, 4.0), (8.0, 12.0))):
+        h1, h2 = (np.array([r, r, l]) for r, l in shapes)
+        reach = math.hypot(*shapes[0]) + math.hypot(*shapes[1])
+        for _ in range(1000):
+            q = random_quaternions(2, rng)
+            if rng.random() < 0.2:
+                q[1] = q[0]
+            R1, R2 = quat_to_matrix(q[0]), quat_to_matrix(q[1])
+            d = rng.standard_normal(3)
+            x2 = d / np.linalg.norm(d) * rng.uniform(0.3, 1.0) * reach
+            st, _, _ = _gjk(CYLINDER, h1, np.zeros(3), R1, False, CYLINDER, h2, x2, R2, False, reach, 0.0, W, WA, WB, lam,
+                            pa, pb, v)
+            got = cylinders_overlap_exact(h1, np.zeros(3), R1, h2, x2, R2)
+            answers[got] += 1
+            if got >= 0:
+                assert got == (1 if st == 1 else 0)
+    assert answers[1] > 500 and answers[0] > 300 and answers[-1] <= 10
+
+
 # ------------------------------------------------------------------------------------------------
 # walls
 
