@@ -391,7 +391,8 @@ def _toi_pair(i, j, sh, kind, h, x, v, wb, Rm, dt, sweep, manifold_tol, nrm, c, 
     touching (``_toi_halvings``), and return True with the contact normal ``nrm`` at t and, in
     ``out_c``, the contact's material points carried back to the present (their midpoint).
     ``ws``, ``x1``, ``x2``, ``R1``, ``R2``: scratch. The trial times ask only whether the bodies
-    overlap (``bodies_overlap_ws``: GJK, no EPA, no contact point)."""
+    overlap (``bodies_overlap_ws``: for two cylinders a point of one inside the other or a
+    separating direction, ``cylinders_overlap_exact``; else GJK; no EPA, no contact point)."""
     _advance_one(i, dt, x, v, wb, Rm, x1, R1)
     _advance_one(j, dt, x, v, wb, Rm, x2, R2)
     for k in range(3):
@@ -679,9 +680,11 @@ def _wall_gap(kind, h, x, R, dcode, Rp, cx, cy, lo, hi, wn, manifold_tol, nrm, c
 @njit(cache=True)
 def _apart_after(i, j, sh, axis, kind, h, x, v, wb, Rm, dt, x1, x2, R1, R2):
     """True if, after a free step of dt, the plane normal to ``axis`` (the present contact normal,
-    1 -> 2) still separates the pair by more than 1e-9 of the body size: then GJK, which reports
-    an overlap only within 1e-10 of the body size of touching, finds the end-of-step gap >= 0
-    and ``_toi_pair`` returns False; this test costs two support points instead of a GJK run."""
+    1 -> 2) still separates the pair by more than 1e-9 of the body size: then the overlap test
+    (the exact one for two cylinders, which needs a point inside the other body by more than
+    1e-9 of the size; GJK, which reports an overlap only within 1e-10 of the body size of
+    touching) finds none, and ``_toi_pair`` returns False; this test costs two support points
+    instead of that test."""
     _advance_one(i, dt, x, v, wb, Rm, x1, R1)
     _advance_one(j, dt, x, v, wb, Rm, x2, R2)
     a0 = axis[0]
