@@ -81,7 +81,7 @@ import numpy as np
 from numba import njit, prange
 
 from .effects import Effect
-from .contact import (_support3, bodies_overlap_ws, body_contact_ws, bounding_radii, candidate_pairs,
+from .contact import (WS_SIZE, _support3, bodies_overlap_ws, body_contact_ws, bounding_radii, candidate_pairs,
                       new_scratch, pipe_wall_contact, plane_wall_contact)
 from .shapes import CYLINDER, SPHERE, bounding_radius
 from .rigid import Bodies, _qmul, quat_to_matrix, quat_to_matrices
@@ -385,14 +385,17 @@ def _toi_halvings(closing):
 
 
 @njit(cache=True)
-def _toi_pair(i, j, sh, kind, h, x, v, wb, Rm, dt, sweep, manifold_tol, nrm, c, out_c, ws, x1, x2, R1, R2):
+def _toi_pair(i, j, sh, kind, h, x, v, wb, Rm, dt, sweep, manifold_tol, nrm, c, out_c, ws, x1, x2, R1, R2, g0, n0,
+              c0, max_gap):
     """Speculative contact of pair (i, j): if the bodies, moving freely, overlap at the end of the
     step, find by bisection a time t before they touch, at which they are within ``_TOI_TOL`` of
     touching (``_toi_halvings``), and return True with the contact normal ``nrm`` at t and, in
     ``out_c``, the contact's material points carried back to the present (their midpoint).
     ``ws``, ``x1``, ``x2``, ``R1``, ``R2``: scratch. The trial times ask only whether the bodies
     overlap (``bodies_overlap_ws``: for two cylinders a point of one inside the other or a
-    separating direction, ``cylinders_overlap_exact``; else GJK; no EPA, no contact point)."""
+    separating direction, ``cylinders_overlap_exact``; else GJK; no EPA, no contact point).
+    ``g0``, ``n0``, ``c0``: the pair's gap, normal and point from the narrow phase (measured with
+    ``max_gap``)."""
     _advance_one(i, dt, x, v, wb, Rm, x1, R1)
     _advance_one(j, dt, x, v, wb, Rm, x2, R2)
     for k in range(3):
@@ -415,7 +418,16 @@ def _toi_pair(i, j, sh, kind, h, x, v, wb, Rm, dt, sweep, manifold_tol, nrm, c, 
     _advance_one(j, lo_t, x, v, wb, Rm, x2, R2)
     for k in range(3):
         x2[k] += sh[k]
-    body_contact_ws(kind[i], h[i], x1, R1, kind[j], h[j], x2, R2, np.inf, manifold_tol, nrm, c, ws)
+    if lo_t == 0.0 and g0 <= max_gap:
+        # Every trial time overlapped: the bodies are where the narrow phase measured them (x + v 0
+        # is x), and that measurement was complete (gap within max_gap): the same numbers. Most
+        # such pairs overlap now and recede too slowly to part within the step; the contact of
+        # overlapping bodies is an EPA, the dearest query there is.
+        for k in range(3):
+            nrm[k] = n0[k]
+            c[k] = c0[k]
+    else:
+        body_contact_ws(kind[i], h[i], x1, R1, kind[j], h[j], x2, R2, np.inf, manifold_tol, nrm, c, ws)
     _carry_back2(c, x1, R1, i, 0.0, 0.0, 0.0, x, Rm, x2, R2, j, sh, out_c)
     return True
 
@@ -472,8 +484,9 @@ def _wall_closing(i, v, sweep, dcode, wn):
 
 @njit(cache=True)
 def _toi_wall(i, kind, h, x, v, wb, Rm, dt, sweep, dcode, Rp, cx, cy, lo, hi, wn, manifold_tol, nrm, c, out_c, x1,
-              R1):
-    """As _toi_pair for body i and the wall identified by its normal wn (x1, R1: scratch)."""
+              R1, g0, c0, max_gap):
+    """As _toi_pair for body i and the wall identified by its normal wn (x1, R1: scratch; g0, c0:
+    the narrow phase's gap and point, exact within ``max_gap``)."""
     _advance_one(i, dt, x, v, wb, Rm, x1, R1)
     if _wall_gap(kind[i], h[i], x1, R1, dcode, Rp, cx, cy, lo, hi, wn, manifold_tol, nrm, c) >= 0.0:
         return False
@@ -487,7 +500,13 @@ def _toi_wall(i, kind, h, x, v, wb, Rm, dt, sweep, dcode, Rp, cx, cy, lo, hi, wn
         else:
             lo_t = mid
     _advance_one(i, lo_t, x, v, wb, Rm, x1, R1)
-    _wall_gap(kind[i], h[i], x1, R1, dcode, Rp, cx, cy, lo, hi, wn, manifold_tol, nrm, c)
+    if lo_t == 0.0 and g0 <= max_gap:
+        # as in _toi_pair: the narrow phase's contact, the same numbers
+        for k in range(3):
+            nrm[k] = wn[k]
+            c[k] = c0[k]
+    else:
+        _wall_gap(kind[i], h[i], x1, R1, dcode, Rp, cx, cy, lo, hi, wn, manifold_tol, nrm, c)
     _carry_back2(c, x1, R1, i, 0.0, 0.0, 0.0, x, Rm, x1, R1, -1, wn, out_c)
     return True
 
@@ -698,7 +717,18 @@ def _apart_after(i, j, sh, axis, kind, h, x, v, wb, Rm, dt, x1, x2, R1, R2):
 
 @njit(cache=True)
 def _test_scratch():
-    return new_scratch(), np.empty(3), np.empty(3), np.empty(3), np.empty(3), np.empty((3, 3)), np.empty((3, 3))
+    """Scratch of ``_activate_one``: the contact scratch (``new_scratch``), then its own arrays
+    (normal, point, the two bodies' trial centres and rotations), in one buffer: each array passed
+    to a function costs a reference count."""
+    return np.empty(WS_SIZE + 30)
+
+
+@njit(cache=True, inline="always")
+def _test_arrays(scr):
+    # the arrays of _activate_one in the buffer of _test_scratch
+    o = WS_SIZE
+    return (scr[o:o + 3], scr[o + 3:o + 6], scr[o + 6:o + 9], scr[o + 9:o + 12],
+            scr[o + 12:o + 21].reshape((3, 3)), scr[o + 21:o + 30].reshape((3, 3)))
 
 
 @njit(cache=True)
@@ -710,7 +740,6 @@ def _activate_one(m, pi, pj, ps, cg, cn, cc, wi, wg, wn, wc, npair, kind, h, x, 
     than the sum of its bodies' point speeds |v| + |omega| r_b times dt, so a gap wider than that
     skips (b) (it would find no overlap), as does a present normal that still separates the pair
     at the end of the step. Writes only contact m's entries."""
-    ws, pnrm, pc, x1, x2, R1, R2 = scr
     if m < npair:
         i = pi[m]
         j = pj[m]
@@ -719,10 +748,12 @@ def _activate_one(m, pi, pj, ps, cg, cn, cc, wi, wg, wn, wc, npair, kind, h, x, 
             for k in range(3):
                 gp_n[m, k] = cn[m, k]
                 gp_c[m, k] = cc[m, k]
-        elif (spec and cg[m] - (sweep[i] + sweep[j]) * dt <= _SWEEP_SLACK
-              and not _apart_after(i, j, ps[m], cn[m], kind, h, x, v, wb, Rm, dt, x1, x2, R1, R2)):
-            if _toi_pair(i, j, ps[m], kind, h, x, v, wb, Rm, dt, sweep, manifold_tol, pnrm, pc, gp_c[m], ws, x1, x2,
-                         R1, R2):
+        elif spec and cg[m] - (sweep[i] + sweep[j]) * dt <= _SWEEP_SLACK:
+            pnrm, pc, x1, x2, R1, R2 = _test_arrays(scr)
+            if _apart_after(i, j, ps[m], cn[m], kind, h, x, v, wb, Rm, dt, x1, x2, R1, R2):
+                return
+            if _toi_pair(i, j, ps[m], kind, h, x, v, wb, Rm, dt, sweep, manifold_tol, pnrm, pc, gp_c[m], scr, x1, x2,
+                         R1, R2, cg[m], cn[m], cc[m], contact_gap):
                 on_p[m] = True
                 for k in range(3):
                     gp_n[m, k] = pnrm[k]
@@ -735,8 +766,9 @@ def _activate_one(m, pi, pj, ps, cg, cn, cc, wi, wg, wn, wc, npair, kind, h, x, 
                 gw_n[m, k] = wn[m, k]
                 gw_c[m, k] = wc[m, k]
         elif spec and wg[m] - _wall_closing(i, v, sweep, dcode, wn[m]) * dt <= _SWEEP_SLACK:
+            pnrm, pc, x1, x2, R1, R2 = _test_arrays(scr)
             if _toi_wall(i, kind, h, x, v, wb, Rm, dt, sweep, dcode, Rp, cx, cy, lo, hi, wn[m], manifold_tol, pnrm, pc,
-                         gw_c[m], x1, R1):
+                         gw_c[m], x1, R1, wg[m], wc[m], contact_gap):
                 on_w[m] = True
                 for k in range(3):
                     gw_n[m, k] = pnrm[k]

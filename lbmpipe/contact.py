@@ -50,9 +50,12 @@ candidate pairs per step, ~800 of them within the collision model's contact gap 
 spacing, where GJK takes ~20 iterations on the curved surfaces. Measured on 1 thread, 2026-12-02,
 on that packing after 100 steps (1,190 pairs): GJK alone 3.0 ms, the exact cylinder path 0.54 ms
 for the 815 separated pairs within the contact gap, 0.87 ms for all 1,190. Inside these loops
-nothing allocates or makes an array view (each view costs a reference count, ~20 ns; the simplex
-rows go to ``_closest_triangle`` as scalars, the scratch is a tuple of arrays; where one
-feature is a rim point the contact point is written out instead of fetching the patch scratch).
+nothing allocates, and arrays are made and passed sparingly: each view, and each array passed to
+a function, costs a reference count, ~10-20 ns. The simplex rows go to ``_closest_triangle`` as
+scalars; the scratch is one buffer (``new_scratch``), whose views are made only on the path that
+needs them (a tuple of its 18 arrays cost ~0.4 us per call, more than half of a cylinder
+contact); where one feature is a rim point the contact point is written out instead of making
+the patch's views; beyond ``max_gap`` there is no patch.
 
 Walls
 -----
@@ -792,15 +795,13 @@ def _feature(kind, h, x, R, n, tol, out, pb):
                 pb[r, b] = sb_[r] * h[b]
             m = 4
     else:  # CYLINDER, axis = body z
-        dr = math.sqrt(d0 * d0 + d1 * d1)
+        side, cap, dr = _cyl_side_cap(h, d0, d1, d2, tol)
         cx = 1.0
         cy = 0.0
         if dr > 0.0:
             cx = d0 / dr
             cy = d1 / dr
         zs = h[2] if d2 >= 0.0 else -h[2]
-        side = 2.0 * h[2] * abs(d2) <= tol
-        cap = 2.0 * h[0] * dr <= tol
         if side and not cap:
             pb[0, 0], pb[0, 1], pb[0, 2] = h[0] * cx, h[0] * cy, -h[2]
             pb[1, 0], pb[1, 1], pb[1, 2] = h[0] * cx, h[0] * cy, h[2]
@@ -821,13 +822,23 @@ def _feature(kind, h, x, R, n, tol, out, pb):
 
 
 @njit(cache=True, inline="always")
+def _cyl_side_cap(h, d0, d1, d2, tol):
+    """Is the feature of a cylinder extreme along the body-frame unit direction d its side (d
+    within tol of normal to the axis), a cap (within tol of the axis), both (a body smaller than
+    tol) or neither (a rim point)? Returns (side, cap, |d_xy|)."""
+    dr = math.sqrt(d0 * d0 + d1 * d1)
+    return 2.0 * h[2] * abs(d2) <= tol, 2.0 * h[0] * dr <= tol, dr
+
+
+@njit(cache=True, inline="always")
 def _cyl_point_feature(h, R, n, tol):
     """Is the feature of a cylinder extreme along +-n (``_feature``) a single rim point, i.e.
-    neither its side nor a cap within ``tol`` of the extreme? The same tests as ``_feature``."""
+    neither its side nor a cap within ``tol`` of the extreme?"""
     d0 = R[0, 0] * n[0] + R[1, 0] * n[1] + R[2, 0] * n[2]
     d1 = R[0, 1] * n[0] + R[1, 1] * n[1] + R[2, 1] * n[2]
     d2 = R[0, 2] * n[0] + R[1, 2] * n[1] + R[2, 2] * n[2]
-    return not (2.0 * h[2] * abs(d2) <= tol or 2.0 * h[0] * math.sqrt(d0 * d0 + d1 * d1) <= tol)
+    side, cap, _dr = _cyl_side_cap(h, d0, d1, d2, tol)
+    return not (side or cap)
 
 
 @njit(cache=True)
@@ -999,7 +1010,16 @@ def _manifold_point(k1, h1, x1, R1, k2, h2, x2, R2, nrm, base, tol, out_c, ws):
     fixes the coordinate along the normal. Leaves out_c = base if the features do not meet.
     ``ws``: the scratch of ``new_scratch`` (it runs for every touching pair and step: no
     allocations)."""
-    f1, f2, pb, P1, P2, mneg, t1, t2, uv, pts = ws[8], ws[9], ws[10], ws[11], ws[12], ws[13], ws[14], ws[15], ws[16], ws[17]
+    f1 = _ws_rows(ws, _WS_F1, DISC_SIDES, 3)
+    f2 = _ws_rows(ws, _WS_F2, DISC_SIDES, 3)
+    pb = _ws_rows(ws, _WS_FB, DISC_SIDES, 3)
+    P1 = _ws_rows(ws, _WS_P1, DISC_SIDES, 2)
+    P2 = _ws_rows(ws, _WS_P2, DISC_SIDES, 2)
+    mneg = ws[_WS_MNEG:_WS_MNEG + 3]
+    t1 = ws[_WS_T1:_WS_T1 + 3]
+    t2 = ws[_WS_T2:_WS_T2 + 3]
+    uv = ws[_WS_UV:_WS_UV + 2]
+    pts = _ws_rows(ws, _WS_PTS, _PATCH_POINTS, 2)
     m1 = _feature(k1, h1, x1, R1, nrm, tol, f1, pb)
     for k in range(3):
         mneg[k] = -nrm[k]
@@ -1029,18 +1049,48 @@ def _manifold_point(k1, h1, x1, R1, k2, h2, x2, R2, nrm, base, tol, out_c, ws):
 _PATCH_POINTS = 2 * DISC_SIDES + 4 * DISC_SIDES * DISC_SIDES // 4 + 8  # vertices in + edge crossings
 
 
+# layout of the scratch buffer (``new_scratch``): offsets of GJK's simplex W, its support points
+# WA, WB (4 x 3 each), the barycentric weights (4), the witness points pa, pb, the search
+# direction v, the witness midpoint (3 each), then the contact patch (``_manifold_point``): the
+# two features and the body-frame points (DISC_SIDES x 3 each), the two plane polygons
+# (DISC_SIDES x 2 each), -n, the plane basis t1, t2 (3 each), the patch point (2) and the patch
+# points (_PATCH_POINTS x 2)
+_WS_W = 0
+_WS_WA = _WS_W + 12
+_WS_WB = _WS_WA + 12
+_WS_LAM = _WS_WB + 12
+_WS_PA = _WS_LAM + 4
+_WS_PB = _WS_PA + 3
+_WS_V = _WS_PB + 3
+_WS_BASE = _WS_V + 3
+_WS_F1 = _WS_BASE + 3
+_WS_F2 = _WS_F1 + 3 * DISC_SIDES
+_WS_FB = _WS_F2 + 3 * DISC_SIDES
+_WS_P1 = _WS_FB + 3 * DISC_SIDES
+_WS_P2 = _WS_P1 + 2 * DISC_SIDES
+_WS_MNEG = _WS_P2 + 2 * DISC_SIDES
+_WS_T1 = _WS_MNEG + 3
+_WS_T2 = _WS_T1 + 3
+_WS_UV = _WS_T2 + 3
+_WS_PTS = _WS_UV + 2
+WS_SIZE = _WS_PTS + 2 * _PATCH_POINTS
+
+
 @njit(cache=True)
 def new_scratch():
-    """Scratch memory of ``body_contact_ws`` and ``bodies_overlap_ws``: GJK's simplex W and its
-    support points WA, WB, barycentric weights, witness points pa, pb, search direction v, the
-    witness midpoint, then the contact patch's features and polygons (``_manifold_point``). One
-    per thread: the narrow phase runs ~10^3 times per step and must not allocate. A tuple of
-    arrays rather than views of one buffer: each view made in a call costs a reference count,
-    ~20 ns, and a contact made ~20 of them."""
-    return (np.empty((4, 3)), np.empty((4, 3)), np.empty((4, 3)), np.empty(4), np.empty(3), np.empty(3), np.empty(3),
-            np.empty(3),
-            np.empty((DISC_SIDES, 3)), np.empty((DISC_SIDES, 3)), np.empty((DISC_SIDES, 3)), np.empty((DISC_SIDES, 2)),
-            np.empty((DISC_SIDES, 2)), np.empty(3), np.empty(3), np.empty(3), np.empty(2), np.empty((_PATCH_POINTS, 2)))
+    """Scratch memory of ``body_contact_ws`` and ``bodies_overlap_ws`` (layout: ``_WS_*``). One
+    per thread: the narrow phase runs ~10^3 times per step and must not allocate. One buffer,
+    not a tuple of arrays: a function call takes a reference on every array it is passed, and
+    for the 18 arrays of a tuple that cost more than most cylinder contacts (0.4 us of 1 us);
+    views are made only where a path needs them. A caller may pass a longer buffer and keep its
+    own scratch after ``WS_SIZE``."""
+    return np.empty(WS_SIZE)
+
+
+@njit(cache=True, inline="always")
+def _ws_rows(ws, off, rows, cols):
+    # a (rows, cols) view of the scratch buffer at offset off
+    return ws[off:off + rows * cols].reshape((rows, cols))
 
 
 @njit(cache=True)
@@ -1054,9 +1104,10 @@ def body_contact(k1, h1, x1, R1, k2, h2, x2, R2, max_gap, manifold_tol, nrm, c):
 
 @njit(cache=True, inline="always")
 def _gjk_scratch(ws):
-    """GJK's and EPA's working arrays in the scratch tuple (``new_scratch``): simplex W and its
+    """GJK's and EPA's working arrays in the scratch buffer (``new_scratch``): simplex W and its
     support points WA, WB, barycentric weights, witness points, search direction."""
-    return ws[0], ws[1], ws[2], ws[3], ws[4], ws[5], ws[6]
+    return (_ws_rows(ws, _WS_W, 4, 3), _ws_rows(ws, _WS_WA, 4, 3), _ws_rows(ws, _WS_WB, 4, 3),
+            ws[_WS_LAM:_WS_LAM + 4], ws[_WS_PA:_WS_PA + 3], ws[_WS_PB:_WS_PB + 3], ws[_WS_V:_WS_V + 3])
 
 
 @njit(cache=True)
@@ -1065,13 +1116,18 @@ def body_contact_ws(k1, h1, x1, R1, k2, h2, x2, R2, max_gap, manifold_tol, nrm, 
     only whether two bodies overlap ask ``bodies_overlap_ws``, which skips EPA and the contact
     point."""
     if k1 == CYLINDER and k2 == CYLINDER:
-        pa = ws[4]
-        pb = ws[5]
+        pa = ws[_WS_PA:_WS_PA + 3]
+        pb = ws[_WS_PB:_WS_PB + 3]
         gap = cylinder_gap_exact(h1, x1, R1, h2, x2, R2, nrm, pa, pb)
+        if gap > max_gap:
+            # beyond max_gap the contact point need only be approximate: no patch
+            for k in range(3):
+                c[k] = 0.5 * (pa[k] + pb[k])
+            return gap
         if gap >= 0.0:
             # Where a feature is a single rim point, the patch is that point: what _manifold_point
-            # returns, written out here, since fetching its ten scratch arrays costs more than
-            # the contact itself
+            # returns, written out here, since making its ten scratch views costs more than the
+            # contact itself
             p1 = _cyl_point_feature(h1, R1, nrm, manifold_tol)
             p2 = _cyl_point_feature(h2, R2, nrm, manifold_tol)
             if p1 or p2:
@@ -1093,7 +1149,7 @@ def body_contact_ws(k1, h1, x1, R1, k2, h2, x2, R2, max_gap, manifold_tol, nrm, 
                 c[1] = b1 + q1 - qn * nrm[1]
                 c[2] = b2 + q2 - qn * nrm[2]
                 return gap
-            base = ws[7]
+            base = ws[_WS_BASE:_WS_BASE + 3]
             for k in range(3):
                 base[k] = 0.5 * (pa[k] + pb[k])
             _manifold_point(k1, h1, x1, R1, k2, h2, x2, R2, nrm, base, manifold_tol, c, ws)
@@ -1115,7 +1171,7 @@ def body_contact_ws(k1, h1, x1, R1, k2, h2, x2, R2, max_gap, manifold_tol, nrm, 
             c[k] = x1[k] + nrm[k] * (h1[0] + 0.5 * gap)
         return gap
     W, WA, WB, lam, pa, pb, v = _gjk_scratch(ws)
-    base = ws[7]
+    base = ws[_WS_BASE:_WS_BASE + 3]
     # a sphere enters GJK as its centre; its radius is a margin subtracted afterwards
     c1 = k1 == SPHERE
     c2 = k2 == SPHERE
@@ -1234,6 +1290,14 @@ def _cyl_height(x0, x1, x2, e0, e1, e2, r, hl, n0, n1, n2):
 
 
 @njit(cache=True, inline="always")
+def _cyl_separation(X1, E1, r1, l1, X2, E2, r2, l2, n0, n1, n2):
+    """Separation of two cylinders along the unit direction n (1 -> 2), from their support
+    heights: a lower bound of the gap, and > 0 only if the plane normal to n separates them."""
+    return -_cyl_height(X2[0], X2[1], X2[2], E2[0], E2[1], E2[2], r2, l2, -n0, -n1, -n2) \
+        - _cyl_height(X1[0], X1[1], X1[2], E1[0], E1[1], E1[2], r1, l1, n0, n1, n2)
+
+
+@njit(cache=True, inline="always")
 def _certified_gap(X1, E1, r1, l1, X2, E2, r2, l2, a0, a1, a2, b0, b1, b2, tol):
     """The distance |b - a| of a point a of cylinder 1 and a point b of cylinder 2 is an upper
     bound of their gap; the separation of the two along n = (b - a)/|b - a| (support heights) is
@@ -1247,8 +1311,7 @@ def _certified_gap(X1, E1, r1, l1, X2, E2, r2, l2, a0, a1, a2, b0, b1, b2, tol):
     n0 = d0 / g
     n1 = d1 / g
     n2 = d2 / g
-    lower = -_cyl_height(X2[0], X2[1], X2[2], E2[0], E2[1], E2[2], r2, l2, -n0, -n1, -n2) \
-        - _cyl_height(X1[0], X1[1], X1[2], E1[0], E1[1], E1[2], r1, l1, n0, n1, n2)
+    lower = _cyl_separation(X1, E1, r1, l1, X2, E2, r2, l2, n0, n1, n2)
     if g - lower <= tol:
         return g
     return -1.0
@@ -1283,11 +1346,17 @@ def _cyl_support_near(X, E, r, hl, d0, d1, d2, ref):
 
 
 @njit(cache=True, inline="always")
+def _facing_sign(X1, E1, X2):
+    # +1 if the cap at X1 + l1 E1 faces the point X2 (the other cap, -1, does not)
+    return 1.0 if E1[0] * (X2[0] - X1[0]) + E1[1] * (X2[1] - X1[1]) + E1[2] * (X2[2] - X1[2]) >= 0.0 else -1.0
+
+
+@njit(cache=True, inline="always")
 def _cap_against(X1, E1, r1, l1, X2, E2, r2, l2):
     """Cap of cylinder 1 facing cylinder 2 against cylinder 2's support point along the cap's
     normal: a circle (or side, or disc) against a plane. Returns (ok, a, b) with ``a`` on the cap
     (the foot of ``b``) and ``b`` on cylinder 2; ok if the foot lies on the cap disc."""
-    s = 1.0 if E1[0] * (X2[0] - X1[0]) + E1[1] * (X2[1] - X1[1]) + E1[2] * (X2[2] - X1[2]) >= 0.0 else -1.0
+    s = _facing_sign(X1, E1, X2)
     m0 = s * E1[0]
     m1 = s * E1[1]
     m2 = s * E1[2]
@@ -1305,7 +1374,7 @@ def _cap_against(X1, E1, r1, l1, X2, E2, r2, l2):
 def _cap_centre(X1, E1, l1, X2, flip):
     """Centre of the cap of cylinder 1 (centre X1, axis E1, half length l1) that faces the point
     X2 (``flip``: the other one)."""
-    s = 1.0 if E1[0] * (X2[0] - X1[0]) + E1[1] * (X2[1] - X1[1]) + E1[2] * (X2[2] - X1[2]) >= 0.0 else -1.0
+    s = _facing_sign(X1, E1, X2)
     if flip:
         s = -s
     return X1[0] + s * l1 * E1[0], X1[1] + s * l1 * E1[1], X1[2] + s * l1 * E1[2]
@@ -1591,9 +1660,7 @@ def cylinders_overlap_exact(h1, x1, R1, h2, x2, R2):
             n0 = d0 / g
             n1 = d1 / g
             n2 = d2 / g
-            sep = -_cyl_height(X2[0], X2[1], X2[2], E2[0], E2[1], E2[2], r2, l2, -n0, -n1, -n2) \
-                - _cyl_height(X1[0], X1[1], X1[2], E1[0], E1[1], E1[2], r1, l1, n0, n1, n2)
-            if sep > tol:
+            if _cyl_separation(X1, E1, r1, l1, X2, E2, r2, l2, n0, n1, n2) > tol:
                 return 0
     return -1
 
@@ -1602,14 +1669,9 @@ def cylinders_overlap_exact(h1, x1, R1, h2, x2, R2):
 # walls
 
 
-@njit(cache=True)
-def _rim_rho2(ex, ey, ax, ay, bx, by, r, th):
-    # squared distance from the pipe axis of the rim point e + r (cos th a + sin th b), xy parts
-    return _rim_rho2_cs(ex, ey, ax, ay, bx, by, r, math.cos(th), math.sin(th))
-
-
 @njit(cache=True, inline="always")
 def _rim_rho2_cs(ex, ey, ax, ay, bx, by, r, ct, st):
+    # squared distance from the pipe axis of the rim point e + r (cos th a + sin th b), xy parts
     px = ex + r * (ct * ax + st * bx)
     py = ey + r * (ct * ay + st * by)
     return px * px + py * py
@@ -1678,10 +1740,12 @@ def pipe_wall_contact(kind, h, x, R, radius, cx, cy, manifold_tol, nrm, c):
                 if s == sbest or (samp[s] >= prv and samp[s] > nxt) or (samp[s] > prv and samp[s] >= nxt):
                     # Newton on f(th) = |e + r(cos a + sin b)|^2_xy; f is a trigonometric
                     # polynomial of degree 2, so derivatives are analytic.
+                    # cos and sin of th are carried along: each is computed once per th (the
+                    # sample's from the table), the same bits as computing them where used
                     th = 2.0 * math.pi * s / RIM_SAMPLES
+                    ct = _RIM_COS[s]
+                    st = _RIM_SIN[s]
                     for _it in range(20):
-                        ct = math.cos(th)
-                        st = math.sin(th)
                         px = ex + r * (ct * ax + st * bx)
                         py = ey + r * (ct * ay + st * by)
                         dpx = r * (-st * ax + ct * bx)
@@ -1695,15 +1759,16 @@ def pipe_wall_contact(kind, h, x, R, radius, cx, cy, manifold_tol, nrm, c):
                         step = -f1 / f2
                         step = min(0.2, max(-0.2, step))
                         th += step
-                        if abs(step) < 1e-13:
-                            break
-                    val = _rim_rho2(ex, ey, ax, ay, bx, by, r, th)
-                    if val < samp[s]:
-                        th = 2.0 * math.pi * s / RIM_SAMPLES
-                        val = samp[s]
-                    if m < cand.shape[0]:
                         ct = math.cos(th)
                         st = math.sin(th)
+                        if abs(step) < 1e-13:
+                            break
+                    val = _rim_rho2_cs(ex, ey, ax, ay, bx, by, r, ct, st)
+                    if val < samp[s]:
+                        val = samp[s]
+                        ct = _RIM_COS[s]
+                        st = _RIM_SIN[s]
+                    if m < cand.shape[0]:
                         cand[m, 0] = cx + ex + r * (ct * ax + st * bx)
                         cand[m, 1] = cy + ey + r * (ct * ay + st * by)
                         cand[m, 2] = ez + r * (ct * R[2, 0] + st * R[2, 1])
