@@ -81,8 +81,8 @@ import numpy as np
 from numba import njit, prange
 
 from .effects import Effect
-from .contact import (WS_SIZE, _support3, bodies_overlap_ws, body_contact_ws, bounding_radii, candidate_pairs,
-                      new_scratch, pipe_wall_contact, plane_wall_contact)
+from .contact import (WS_SIZE, _support3, _ws_rows, bodies_overlap_ws, body_contact_ws, bounding_radii,
+                      candidate_pairs, new_scratch, pipe_wall_contact, plane_wall_contact)
 from .shapes import CYLINDER, SPHERE, bounding_radius
 from .rigid import Bodies, _qmul, quat_to_matrix, quat_to_matrices
 
@@ -727,8 +727,8 @@ def _test_scratch():
 def _test_arrays(scr):
     # the arrays of _activate_one in the buffer of _test_scratch
     o = WS_SIZE
-    return (scr[o:o + 3], scr[o + 3:o + 6], scr[o + 6:o + 9], scr[o + 9:o + 12],
-            scr[o + 12:o + 21].reshape((3, 3)), scr[o + 21:o + 30].reshape((3, 3)))
+    return (scr[o:o + 3], scr[o + 3:o + 6], scr[o + 6:o + 9], scr[o + 9:o + 12], _ws_rows(scr, o + 12, 3, 3),
+            _ws_rows(scr, o + 21, 3, 3))
 
 
 @njit(cache=True)

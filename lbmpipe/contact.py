@@ -1119,8 +1119,9 @@ def body_contact_ws(k1, h1, x1, R1, k2, h2, x2, R2, max_gap, manifold_tol, nrm, 
         pa = ws[_WS_PA:_WS_PA + 3]
         pb = ws[_WS_PB:_WS_PB + 3]
         gap = cylinder_gap_exact(h1, x1, R1, h2, x2, R2, nrm, pa, pb)
-        if gap > max_gap:
-            # beyond max_gap the contact point need only be approximate: no patch
+        if gap >= 0.0 and gap > max_gap:
+            # beyond max_gap the contact point need only be approximate: no patch (a gap of -1,
+            # uncertified, goes to GJK/EPA whatever max_gap is)
             for k in range(3):
                 c[k] = 0.5 * (pa[k] + pb[k])
             return gap
