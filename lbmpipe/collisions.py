@@ -31,17 +31,22 @@ energy by ``-(1 - k^2)/2 * m_eff (v_1p - v_2p)^2`` with ``1/m_eff = 1/m_1 + 1/m_
 (zero for ``k = 1``).
 
 When is a contact treated (``CollisionParams``):
-- touching: the signed gap is ``<= contact_gap`` and the contact approaches; the impulse uses the
-  present contact point and normal;
-- speculative (``speculative=True``, default): the two bodies, moving freely at their present
-  velocities and angular velocities, would overlap by the end of the step ``dt``. The time of
-  impact in the step is found by bisection, halved until the bodies close by at most ``_TOI_TOL``
-  (1e-3 lattice spacings) over the bracket left (at most 12 halvings); the impulse uses the
-  contact normal at that time and the contact's material points carried back to the present
-  (their midpoint, so that both bodies receive ``-/+ I p`` at one point and the conservation laws
-  hold exactly). The bounce thus happens up to one step early instead of the bodies overlapping;
-  this also catches a corner turning into contact, which a test on the present gap and normal
-  velocity misses;
+- touching: the signed gap is ``<= contact_gap``. The contact takes part in the impulse sweeps
+  from the start with its present point and normal, and receives an impulse whenever it
+  approaches, including when it recedes at first and an impulse elsewhere in the step turns it
+  around (a row of touching spheres passes a blow down the row within one step);
+- speculative (``speculative=True``, default): a contact wider than ``contact_gap`` whose two
+  bodies, moving freely at their present velocities and angular velocities, would overlap by the
+  end of the step ``dt``. The time of impact in the step is found by bisection, halved until
+  the bodies close by at most ``_TOI_TOL`` (1e-3 lattice spacings) over the bracket left (at most
+  12 halvings); the impulse uses the contact normal at that time and the contact's material
+  points carried back to the present (their midpoint, so that both bodies receive ``-/+ I p`` at
+  one point and the conservation laws hold exactly). The bounce thus happens up to one step early
+  instead of the bodies overlapping; this also catches a corner turning into contact, which a
+  test on the present gap and normal velocity misses. (Until 2026-12-02 the touching contacts
+  that did not approach at the start of a step went through this test too, and again after each
+  round of impulses: 0.4-0.6 of the collision step of 244 dense cylinders, for geometry the sweeps
+  now take from the narrow phase);
 - with several contacts the impulses are applied contact by contact (Gauss-Seidel) in repeated
   sweeps until none approaches; as impulses change velocities, the speculative test is then
   repeated (a body knocked into a third one within the step) until a round applies no impulse
@@ -385,17 +390,14 @@ def _toi_halvings(closing):
 
 
 @njit(cache=True)
-def _toi_pair(i, j, sh, kind, h, x, v, wb, Rm, dt, sweep, manifold_tol, nrm, c, out_c, ws, x1, x2, R1, R2, g0, n0,
-              c0, max_gap):
+def _toi_pair(i, j, sh, kind, h, x, v, wb, Rm, dt, sweep, manifold_tol, nrm, c, out_c, ws, x1, x2, R1, R2):
     """Speculative contact of pair (i, j): if the bodies, moving freely, overlap at the end of the
     step, find by bisection a time t before they touch, at which they are within ``_TOI_TOL`` of
     touching (``_toi_halvings``), and return True with the contact normal ``nrm`` at t and, in
     ``out_c``, the contact's material points carried back to the present (their midpoint).
     ``ws``, ``x1``, ``x2``, ``R1``, ``R2``: scratch. The trial times ask only whether the bodies
     overlap (``bodies_overlap_ws``: for two cylinders a point of one inside the other or a
-    separating direction, ``cylinders_overlap_exact``; else GJK; no EPA, no contact point).
-    ``g0``, ``n0``, ``c0``: the pair's gap, normal and point from the narrow phase (measured with
-    ``max_gap``)."""
+    separating direction, ``cylinders_overlap_exact``; else GJK; no EPA, no contact point)."""
     _advance_one(i, dt, x, v, wb, Rm, x1, R1)
     _advance_one(j, dt, x, v, wb, Rm, x2, R2)
     for k in range(3):
@@ -418,16 +420,7 @@ def _toi_pair(i, j, sh, kind, h, x, v, wb, Rm, dt, sweep, manifold_tol, nrm, c, 
     _advance_one(j, lo_t, x, v, wb, Rm, x2, R2)
     for k in range(3):
         x2[k] += sh[k]
-    if lo_t == 0.0 and g0 <= max_gap:
-        # Every trial time overlapped: the bodies are where the narrow phase measured them (x + v 0
-        # is x), and that measurement was complete (gap within max_gap): the same numbers. Most
-        # such pairs overlap now and recede too slowly to part within the step; the contact of
-        # overlapping bodies is an EPA, the dearest query there is.
-        for k in range(3):
-            nrm[k] = n0[k]
-            c[k] = c0[k]
-    else:
-        body_contact_ws(kind[i], h[i], x1, R1, kind[j], h[j], x2, R2, np.inf, manifold_tol, nrm, c, ws)
+    body_contact_ws(kind[i], h[i], x1, R1, kind[j], h[j], x2, R2, np.inf, manifold_tol, nrm, c, ws)
     _carry_back2(c, x1, R1, i, 0.0, 0.0, 0.0, x, Rm, x2, R2, j, sh, out_c)
     return True
 
@@ -484,9 +477,8 @@ def _wall_closing(i, v, sweep, dcode, wn):
 
 @njit(cache=True)
 def _toi_wall(i, kind, h, x, v, wb, Rm, dt, sweep, dcode, Rp, cx, cy, lo, hi, wn, manifold_tol, nrm, c, out_c, x1,
-              R1, g0, c0, max_gap):
-    """As _toi_pair for body i and the wall identified by its normal wn (x1, R1: scratch; g0, c0:
-    the narrow phase's gap and point, exact within ``max_gap``)."""
+              R1):
+    """As _toi_pair for body i and the wall identified by its normal wn (x1, R1: scratch)."""
     _advance_one(i, dt, x, v, wb, Rm, x1, R1)
     if _wall_gap(kind[i], h[i], x1, R1, dcode, Rp, cx, cy, lo, hi, wn, manifold_tol, nrm, c) >= 0.0:
         return False
@@ -500,13 +492,7 @@ def _toi_wall(i, kind, h, x, v, wb, Rm, dt, sweep, dcode, Rp, cx, cy, lo, hi, wn
         else:
             lo_t = mid
     _advance_one(i, lo_t, x, v, wb, Rm, x1, R1)
-    if lo_t == 0.0 and g0 <= max_gap:
-        # as in _toi_pair: the narrow phase's contact, the same numbers
-        for k in range(3):
-            nrm[k] = wn[k]
-            c[k] = c0[k]
-    else:
-        _wall_gap(kind[i], h[i], x1, R1, dcode, Rp, cx, cy, lo, hi, wn, manifold_tol, nrm, c)
+    _wall_gap(kind[i], h[i], x1, R1, dcode, Rp, cx, cy, lo, hi, wn, manifold_tol, nrm, c)
     _carry_back2(c, x1, R1, i, 0.0, 0.0, 0.0, x, Rm, x1, R1, -1, wn, out_c)
     return True
 
@@ -732,51 +718,43 @@ def _test_arrays(scr):
 
 
 @njit(cache=True)
-def _activate_one(m, pi, pj, ps, cg, cn, cc, wi, wg, wn, wc, npair, kind, h, x, v, wb, Rm, sweep, dt, contact_gap, spec,
-                  vtol, manifold_tol, dcode, Rp, cx, cy, lo, hi, on_p, gp_n, gp_c, on_w, gw_n, gw_c, scr):
-    """Is contact m (m < npair: pair; else wall m - npair) active? (a) touching (gap <=
-    contact_gap) and approaching: with the present geometry; or (b) with ``spec``, overlapping
-    after a free step (``_toi_pair`` / ``_toi_wall``). A contact's free motion cannot close more
-    than the sum of its bodies' point speeds |v| + |omega| r_b times dt, so a gap wider than that
-    skips (b) (it would find no overlap), as does a present normal that still separates the pair
-    at the end of the step. Writes only contact m's entries."""
+def _activate_one(m, pi, pj, ps, cg, cn, cc, wi, wg, wn, wc, npair, kind, h, x, v, wb, Rm, sweep, dt, manifold_tol, dcode,
+                  Rp, cx, cy, lo, hi, on_p, gp_n, gp_c, on_w, gw_n, gw_c, scr):
+    """Speculative test (b) of contact m (m < npair: pair; else wall m - npair), wider than the
+    contact gap: active if its bodies overlap after a free step (``_toi_pair`` / ``_toi_wall``),
+    with the geometry at the time of impact. A contact's free motion cannot close more than the
+    sum of its bodies' point speeds |v| + |omega| r_b times dt, so a gap wider than that skips the
+    test (it would find no overlap), as does a present normal that still separates the pair at
+    the end of the step. Writes only contact m's entries; never switches a contact off."""
     if m < npair:
         i = pi[m]
         j = pj[m]
-        if cg[m] <= contact_gap and _normal_speed(i, j, m, ps, cc, cn, x, v, wb, Rm) > vtol:
+        if cg[m] - (sweep[i] + sweep[j]) * dt > _SWEEP_SLACK:
+            return
+        pnrm, pc, x1, x2, R1, R2 = _test_arrays(scr)
+        if _apart_after(i, j, ps[m], cn[m], kind, h, x, v, wb, Rm, dt, x1, x2, R1, R2):
+            return
+        if _toi_pair(i, j, ps[m], kind, h, x, v, wb, Rm, dt, sweep, manifold_tol, pnrm, pc, gp_c[m], scr, x1, x2, R1,
+                     R2):
             on_p[m] = True
             for k in range(3):
-                gp_n[m, k] = cn[m, k]
-                gp_c[m, k] = cc[m, k]
-        elif spec and cg[m] - (sweep[i] + sweep[j]) * dt <= _SWEEP_SLACK:
-            pnrm, pc, x1, x2, R1, R2 = _test_arrays(scr)
-            if _apart_after(i, j, ps[m], cn[m], kind, h, x, v, wb, Rm, dt, x1, x2, R1, R2):
-                return
-            if _toi_pair(i, j, ps[m], kind, h, x, v, wb, Rm, dt, sweep, manifold_tol, pnrm, pc, gp_c[m], scr, x1, x2,
-                         R1, R2, cg[m], cn[m], cc[m], contact_gap):
-                on_p[m] = True
-                for k in range(3):
-                    gp_n[m, k] = pnrm[k]
+                gp_n[m, k] = pnrm[k]
     else:
         m -= npair
         i = wi[m]
-        if wg[m] <= contact_gap and _normal_speed(i, -1, m, wn, wc, wn, x, v, wb, Rm) > vtol:
+        if wg[m] - _wall_closing(i, v, sweep, dcode, wn[m]) * dt > _SWEEP_SLACK:
+            return
+        pnrm, pc, x1, x2, R1, R2 = _test_arrays(scr)
+        if _toi_wall(i, kind, h, x, v, wb, Rm, dt, sweep, dcode, Rp, cx, cy, lo, hi, wn[m], manifold_tol, pnrm, pc, gw_c[m],
+                     x1, R1):
             on_w[m] = True
             for k in range(3):
-                gw_n[m, k] = wn[m, k]
-                gw_c[m, k] = wc[m, k]
-        elif spec and wg[m] - _wall_closing(i, v, sweep, dcode, wn[m]) * dt <= _SWEEP_SLACK:
-            pnrm, pc, x1, x2, R1, R2 = _test_arrays(scr)
-            if _toi_wall(i, kind, h, x, v, wb, Rm, dt, sweep, dcode, Rp, cx, cy, lo, hi, wn[m], manifold_tol, pnrm, pc,
-                         gw_c[m], x1, R1, wg[m], wc[m], contact_gap):
-                on_w[m] = True
-                for k in range(3):
-                    gw_n[m, k] = pnrm[k]
+                gw_n[m, k] = pnrm[k]
 
 
 @njit(cache=True, parallel=True)
 def _activate_par(todo, ntodo, pi, pj, ps, cg, cn, cc, wi, wg, wn, wc, npair, kind, h, x, v, wb, Rm, sweep, dt,
-                  contact_gap, spec, vtol, manifold_tol, dcode, Rp, cx, cy, lo, hi, on_p, gp_n, gp_c, on_w, gw_n, gw_c):
+                  manifold_tol, dcode, Rp, cx, cy, lo, hi, on_p, gp_n, gp_c, on_w, gw_n, gw_c):
     """``_activate_one`` for the contacts ``todo[:ntodo]``, in parallel (thread-count independent:
     each writes only its own entries and reads velocities no one writes meanwhile)."""
     nch = (ntodo + _CHUNK - 1) // _CHUNK
@@ -784,8 +762,7 @@ def _activate_par(todo, ntodo, pi, pj, ps, cg, cn, cc, wi, wg, wn, wc, npair, ki
         scr = _test_scratch()
         for t in range(ch * _CHUNK, min(ntodo, ch * _CHUNK + _CHUNK)):
             _activate_one(todo[t], pi, pj, ps, cg, cn, cc, wi, wg, wn, wc, npair, kind, h, x, v, wb, Rm, sweep, dt,
-                          contact_gap, spec, vtol, manifold_tol, dcode, Rp, cx, cy, lo, hi, on_p, gp_n, gp_c, on_w, gw_n,
-                          gw_c, scr)
+                          manifold_tol, dcode, Rp, cx, cy, lo, hi, on_p, gp_n, gp_c, on_w, gw_n, gw_c, scr)
 
 
 @njit(cache=True)
@@ -1016,14 +993,15 @@ def _resolve_kernel(
     stats[_S_OVB] = max(stats[_S_OVB], ov)
 
     # ---- impulses, Eqs. (16)-(21), Gauss-Seidel over the active contacts. A contact is active
-    # (a) if it touches now (gap <= contact_gap) and approaches at its contact point: impulse with
-    #     the present geometry; or, with ``spec``,
-    # (b) if the two bodies, moving freely at the present velocities, would overlap by the end of
-    #     the step: the time of impact is found by bisection, and the impulse uses the contact
-    #     normal there and the contact's material points carried back to the present (their
-    #     midpoint, so that both bodies get -/+ I p at one point). This catches corners turning
-    #     into contact as well as approaching faces.
-    # Impulses change velocities, so the prediction is redone until a round applies none. The
+    # (a) if it touches now (gap <= contact_gap): with its present point and normal, from the
+    #     start; the sweeps give it an impulse whenever it approaches, so a touching contact that
+    #     recedes now joins in as soon as an impulse elsewhere turns it around; or, with ``spec``,
+    # (b) if it is wider but the two bodies, moving freely at the present velocities, would
+    #     overlap by the end of the step: the time of impact is found by bisection, and the
+    #     impulse uses the contact normal there and the contact's material points carried back to
+    #     the present (their midpoint, so that both bodies get -/+ I p at one point). This catches
+    #     corners turning into contact as well as approaching faces.
+    # Impulses change velocities, so the prediction (b) is redone until a round applies none. The
     # test of a contact depends only on its two bodies' velocities, so a round re-tests only the
     # contacts with a body that received an impulse since their last test (the others would
     # give the same answer again).
@@ -1044,36 +1022,41 @@ def _resolve_kernel(
         gw_n = gn[npair:]
         gp_c = cc.copy()  # impulse points
         gw_c = wc.copy()
-        on_p = np.zeros(npair, dtype=np.bool_)
-        on_w = np.zeros(nwall, dtype=np.bool_)
+        gt = np.empty((npair + nwall, _NG))  # impulse terms (_impulse_terms) of the active contacts
+        gt_p = gt[:npair]
+        gt_w = gt[npair:]
+        # (a): the touching contacts, with the geometry the narrow phase measured
+        on_p = cg <= contact_gap
+        on_w = wg <= contact_gap
+        for m in range(npair):
+            if on_p[m]:
+                _impulse_terms(pi[m], pj[m], ps[m, 0], ps[m, 1], ps[m, 2], gp_c[m], gp_n[m], x, Rm, im, iinv, gt_p, m)
+        for m in range(nwall):
+            if on_w[m]:
+                _impulse_terms(wi[m], -1, 0.0, 0.0, 0.0, gw_c[m], gw_n[m], x, Rm, im, iinv, gt_w, m)
         vtol = 1e-12 * vmax
         nimp = 0
         sweeps = 0
-        # contacts within reach (pairs, then walls as npair + m), in the order of the sweeps
+        # (b): the wider contacts within reach (pairs, then walls as npair + m)
         near = np.empty(npair + nwall, dtype=np.int64)
         nnear = 0
-        for m in range(npair):
-            if cg[m] <= reach:
-                near[nnear] = m
-                nnear += 1
-        for m in range(nwall):
-            if wg[m] <= reach:
-                near[nnear] = npair + m
-                nnear += 1
+        if spec:
+            for m in range(npair):
+                if contact_gap < cg[m] <= reach:
+                    near[nnear] = m
+                    nnear += 1
+            for m in range(nwall):
+                if contact_gap < wg[m] <= reach:
+                    near[nnear] = npair + m
+                    nnear += 1
         ver = np.zeros(n, dtype=np.int64)  # impulses received by each body so far
         seen1 = np.full(npair + nwall, -1, dtype=np.int64)  # ver of the bodies at a contact's last test
         seen2 = np.full(npair + nwall, -1, dtype=np.int64)
         todo = np.empty(nnear, dtype=np.int64)
         scr = _test_scratch()
-        act = np.empty(nnear, dtype=np.int64)
-        gt = np.empty((npair + nwall, _NG))  # impulse terms (_impulse_terms) of the active contacts
-        gt_p = gt[:npair]
-        gt_w = gt[npair:]
+        act = np.empty(npair + nwall, dtype=np.int64)
         ev1 = np.full(npair + nwall, -1, dtype=np.int64)  # ver of the bodies at a contact's last impulse evaluation
         ev2 = np.full(npair + nwall, -1, dtype=np.int64)
-        # contact geometry set this round (terms to compute); active with its present geometry
-        fresh = np.zeros(npair + nwall, dtype=np.bool_)
-        touch = np.zeros(npair + nwall, dtype=np.bool_)
         for rnd in range(max_sweeps):
             ntodo = 0
             for t in range(nnear):
@@ -1087,55 +1070,25 @@ def _resolve_kernel(
                     ntodo += 1
             if ntodo >= _PAR_MIN:
                 _activate_par(todo, ntodo, pi, pj, ps, cg, cn, cc, wi, wg, wn, wc, npair, kind, h, x, v, wb, Rm, sweep,
-                              dt, contact_gap, spec, vtol, manifold_tol, dcode, Rp, cx, cy, lo, hi, on_p, gp_n, gp_c, on_w,
-                              gw_n, gw_c)
-                for t in range(ntodo):
-                    fresh[todo[t]] = True
-                    touch[todo[t]] = False
+                              dt, manifold_tol, dcode, Rp, cx, cy, lo, hi, on_p, gp_n, gp_c, on_w, gw_n, gw_c)
             else:
                 for t in range(ntodo):
                     m = todo[t]
-                    # _activate_one's common outcomes, inline: a touching contact that approaches,
-                    # and a contact too far to close within the step
+                    # _activate_one's common outcome, inline: a contact too far to close within the step
                     if m < npair:
-                        i = pi[m]
-                        j = pj[m]
-                        if cg[m] <= contact_gap and _normal_speed(i, j, m, ps, cc, cn, x, v, wb, Rm) > vtol:
-                            if not (on_p[m] and touch[m]):  # else it has this geometry and its terms already
-                                on_p[m] = True
-                                for k in range(3):
-                                    gp_n[m, k] = cn[m, k]
-                                    gp_c[m, k] = cc[m, k]
-                                touch[m] = True
-                                fresh[m] = True
+                        if cg[m] - (sweep[pi[m]] + sweep[pj[m]]) * dt > _SWEEP_SLACK:
+                            todo[t] = -1
                             continue
-                        if not (spec and cg[m] - (sweep[i] + sweep[j]) * dt <= _SWEEP_SLACK):
-                            continue
-                    else:
-                        mw = m - npair
-                        i = wi[mw]
-                        if wg[mw] <= contact_gap and _normal_speed(i, -1, mw, wn, wc, wn, x, v, wb, Rm) > vtol:
-                            if not (on_w[mw] and touch[m]):
-                                on_w[mw] = True
-                                for k in range(3):
-                                    gw_n[mw, k] = wn[mw, k]
-                                    gw_c[mw, k] = wc[mw, k]
-                                touch[m] = True
-                                fresh[m] = True
-                            continue
-                        if not (spec and wg[mw] - _wall_closing(i, v, sweep, dcode, wn[mw]) * dt <= _SWEEP_SLACK):
-                            continue
-                    _activate_one(m, pi, pj, ps, cg, cn, cc, wi, wg, wn, wc, npair, kind, h, x, v, wb, Rm, sweep,
-                                  dt, contact_gap, spec, vtol, manifold_tol, dcode, Rp, cx, cy, lo, hi, on_p, gp_n, gp_c,
-                                  on_w, gw_n, gw_c, scr)
-                    fresh[m] = True
-                    touch[m] = False
+                    elif wg[m - npair] - _wall_closing(wi[m - npair], v, sweep, dcode, wn[m - npair]) * dt > _SWEEP_SLACK:
+                        todo[t] = -1
+                        continue
+                    _activate_one(m, pi, pj, ps, cg, cn, cc, wi, wg, wn, wc, npair, kind, h, x, v, wb, Rm, sweep, dt,
+                                  manifold_tol, dcode, Rp, cx, cy, lo, hi, on_p, gp_n, gp_c, on_w, gw_n, gw_c, scr)
             # impulse terms of the contacts whose geometry this round may have set
             for t in range(ntodo):
                 m = todo[t]
-                if not fresh[m]:
+                if m < 0:
                     continue
-                fresh[m] = False
                 if m < npair:
                     if on_p[m]:
                         _impulse_terms(pi[m], pj[m], ps[m, 0], ps[m, 1], ps[m, 2], gp_c[m], gp_n[m], x, Rm, im, iinv,
@@ -1146,8 +1099,7 @@ def _resolve_kernel(
                     _impulse_terms(wi[mw], -1, 0.0, 0.0, 0.0, gw_c[mw], gw_n[mw], x, Rm, im, iinv, gt_w, mw)
                     ev1[m] = -1
             nact = 0
-            for t in range(nnear):
-                m = near[t]
+            for m in range(npair + nwall):
                 if (on_p[m] if m < npair else on_w[m - npair]):
                     act[nact] = m
                     nact += 1
@@ -1159,7 +1111,7 @@ def _resolve_kernel(
                 if applied == 0:
                     break
             nimp += applied_round
-            if applied_round == 0:
+            if applied_round == 0 or nnear == 0:
                 break
         # contacts still approaching after the last sweep (only if a sweep cap was hit)
         unres = 0
