@@ -318,18 +318,6 @@ def _impulse(i, j, sx, sy, sz, c, p, x, v, wb, Rm, im, iinv, k_rest, vtol):
                      np.zeros(v.shape[0], dtype=np.int64), ev, ev.copy()) > 0
 
 
-@njit(cache=True, inline="always")
-def _normal_speed(i, j, m, sh, c, p, x, v, wb, Rm):
-    """(u_1 - u_2) . p at contact row m (point c[m], normal p[m], body 2 at x_j + sh[m]), with
-    u = v + omega x l the contact-point velocities (u_2 = 0 for j < 0), indexed by row rather
-    than handed row views (each view is a reference count)."""
-    vn = _normal_velocity(i, c[m, 0] - x[i, 0], c[m, 1] - x[i, 1], c[m, 2] - x[i, 2], p, m, v, wb, Rm)
-    if j < 0:
-        return vn
-    return vn - _normal_velocity(j, c[m, 0] - x[j, 0] - sh[m, 0], c[m, 1] - x[j, 1] - sh[m, 1],
-                                 c[m, 2] - x[j, 2] - sh[m, 2], p, m, v, wb, Rm)
-
-
 @njit(cache=True)
 def _advance_one(i, t, x, v, wb, Rm, xo, Ro):
     """Body i after a free motion over time t: xo = x + v t, Ro = rotation by omega t applied to
