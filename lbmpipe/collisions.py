@@ -45,7 +45,7 @@ When is a contact treated (``CollisionParams``):
   instead of the bodies overlapping; this also catches a corner turning into contact, which a
   test on the present gap and normal velocity misses. (Until 2026-12-02 the touching contacts
   that did not approach at the start of a step went through this test too, and again after each
-  round of impulses: 0.4-0.6 of the collision step of 244 dense cylinders, for geometry the sweeps
+  round of impulses: 0.2-0.5 of the collision step of 244 dense cylinders, for geometry the sweeps
   now take from the narrow phase);
 - with several contacts the impulses are applied contact by contact (Gauss-Seidel) in repeated
   sweeps until none approaches; as impulses change velocities, the speculative test is then
