@@ -1063,6 +1063,8 @@ def _resolve_kernel(
                 for t in range(ntodo):
                     m = todo[t]
                     # _activate_one's common outcome, inline: a contact too far to close within the step
+                    # (the call takes a reference on each of its ~20 arrays: calling it for every
+                    # contact instead took 1.09 of the kernel's time, 244 dense cylinders)
                     if m < npair:
                         if cg[m] - (sweep[pi[m]] + sweep[pj[m]]) * dt > _SWEEP_SLACK:
                             todo[t] = -1
