@@ -87,7 +87,8 @@ from numba import njit, prange
 
 from .effects import Effect
 from .contact import (WS_SIZE, _support3, _ws_rows, bodies_overlap_ws, body_contact_ws, bounding_radii,
-                      candidate_pairs, new_scratch, pipe_wall_contact, plane_wall_contact)
+                      list_displacement, listed_pairs, neighbour_list, new_scratch, pipe_wall_contact,
+                      plane_wall_contact)
 from .shapes import CYLINDER, SPHERE, bounding_radius
 from .rigid import Bodies, _qmul, quat_to_matrix, quat_to_matrices
 
@@ -162,6 +163,8 @@ class CollisionParams:
     - ``skin``: extra broad-phase margin; also the displacement budget of the projection before
       the pair list is rebuilt.
     - ``max_sweeps``, ``max_projection_iters``: caps of the Gauss-Seidel loops.
+    - ``list_skin``: extra margin of the Verlet list kept over calls (``NeighbourList``): it is
+      rebuilt once a body has moved by half of it. Only the cost depends on it, not the result.
     """
 
     restitution: float = 1.0
@@ -172,12 +175,32 @@ class CollisionParams:
     skin: float = 0.5
     max_sweeps: int = 100
     max_projection_iters: int = 200
+    list_skin: float = 1.0
 
     def __post_init__(self):
         if not (0.0 <= self.restitution <= 1.0):
             raise ValueError(f"CollisionParams.restitution must be in [0, 1], got {self.restitution}")
         if self.contact_gap < 0.0 or self.overlap_tol <= 0.0 or self.manifold_tol < 0.0 or self.skin <= 0.0:
             raise ValueError(f"CollisionParams: contact_gap >= 0, overlap_tol > 0, manifold_tol >= 0, skin > 0 ({self})")
+        if not self.list_skin >= 0.0:
+            raise ValueError(f"CollisionParams.list_skin must be >= 0, got {self.list_skin}")
+
+
+class NeighbourList:
+    """The Verlet list of the pair search, kept from one call of ``resolve_collisions`` to the
+    next (``lbmpipe.contact.neighbour_list``; the kernel rebuilds it when a body has moved too
+    far). The pairs taken from it are those of the cell scan, in its order, so a fresh list (a
+    restart from a checkpoint) changes no result."""
+
+    def __init__(self):
+        self.start = np.zeros(1, dtype=np.int64)
+        self.js = np.zeros(0, dtype=np.int64)
+        self.xref = np.zeros((0, 3))
+        self.meta = np.zeros(3)  # margin built for, built (0/1), number of builds
+
+    @property
+    def builds(self) -> int:
+        return int(self.meta[2])
 
 
 # stats layout
@@ -918,7 +941,7 @@ def _resolve_kernel(
     kind, h, mass, inertia, x, v, q, wb, fixed,
     dcode, Rp, cx, cy, lo, hi, periodic,
     k_rest, contact_gap, spec, overlap_tol, manifold_tol, skin, max_sweeps, max_proj, dt,
-    do_impulses, stats, pairs=True,
+    do_impulses, stats, pairs, list_skin, lstart, ljs, lxref, lmeta,
 ):
     n = x.shape[0]
     Rm = quat_to_matrices(q)
@@ -941,7 +964,16 @@ def _resolve_kernel(
     reach = contact_gap + (2.0 * vmax * dt if spec else 0.0)
     margin = reach + skin
     if pairs:
-        pi, pj, ps = candidate_pairs(x, rb, margin, lo, hi, periodic)
+        # the Verlet list (lstart, ljs: neighbour_list), built at lxref for the margin lmeta[0]
+        # (lmeta[1]: built; lmeta[2]: builds), serves while it holds every pair within margin
+        if not (lmeta[1] > 0.0 and lxref.shape[0] == n
+                and margin + 2.0 * list_displacement(x, lxref, lo, hi, periodic) <= lmeta[0]):
+            lmeta[0] = margin + list_skin
+            lstart, ljs = neighbour_list(x, rb, lmeta[0], lo, hi, periodic)
+            lxref[:] = x
+            lmeta[1] = 1.0
+            lmeta[2] += 1.0
+        pi, pj, ps = listed_pairs(x, rb, margin, lo, hi, periodic, lstart, ljs)
     else:  # one particle, or a scene that asks for wall contacts only
         pi = np.empty(0, dtype=np.int64)
         pj = np.empty(0, dtype=np.int64)
@@ -1149,7 +1181,7 @@ def _resolve_kernel(
     stats[_S_OVA] = ova
     stats[_S_PROJ] += it_used
     stats[_S_DISP] = max(stats[_S_DISP], maxdisp)
-    return maxdisp, margin
+    return maxdisp, lstart, ljs
 
 
 def _too_short_axis(domain_arrays, rb_max: float, margin: float) -> int:
@@ -1163,7 +1195,7 @@ def _too_short_axis(domain_arrays, rb_max: float, margin: float) -> int:
 
 
 def resolve_collisions(bodies: Bodies, domain: Domain, params: CollisionParams, dt: float, pairs: bool = True,
-                       step: int = -1) -> dict:
+                       step: int = -1, nlist: NeighbourList | None = None) -> dict:
     """Detect all particle-particle and particle-wall contacts, apply the impulses of
     Eqs. (16)-(21) (in place on ``bodies.v`` and ``bodies.wb``) and project overlaps away (in place
     on ``bodies.x``). See the module docstring for the model and the overlap bound.
@@ -1176,6 +1208,7 @@ def resolve_collisions(bodies: Bodies, domain: Domain, params: CollisionParams, 
     ``pairs=False`` skips the broad phase and all particle-particle contacts (walls only).
     Raises ``guard.Unstable`` (naming ``step``) when a body moves so fast that its reach per step
     spans the periodic length: the sign of a run that has blown up between guard checks.
+    ``nlist``: the pair search's Verlet list to keep between calls (time steps); None: a fresh one.
     """
     n = bodies.n
     stats = np.zeros(_NSTATS)
@@ -1206,14 +1239,20 @@ def resolve_collisions(bodies: Bodies, domain: Domain, params: CollisionParams, 
                        f"bounding radius) reaches past the periodic images", f"particle {k}", step,
                        "the fluid-particle coupling went unstable (high Mach number or a thin fluid film)",
                        "reduce numerics.dt_s, use numerics.collision: trt, or lower the concentration")
+    if nlist is None:
+        nlist = NeighbourList()
+    if nlist.xref.shape[0] != n:
+        nlist.xref = np.zeros((n, 3))
+        nlist.meta[1] = 0.0
     passes = 0
     for p in range(4):
-        maxdisp, _ = _resolve_kernel(
+        maxdisp, nlist.start, nlist.js = _resolve_kernel(
             bodies.kind, bodies.h, bodies.mass, bodies.inertia, bodies.x, bodies.v, bodies.q, bodies.wb, bodies.fixed,
             dcode, Rp, cx, cy, lo, hi, periodic,
             float(params.restitution), float(params.contact_gap), bool(params.speculative), float(params.overlap_tol),
             float(params.manifold_tol), float(params.skin), int(params.max_sweeps), int(params.max_projection_iters),
-            float(dt), p == 0, stats, bool(pairs),
+            float(dt), p == 0, stats, bool(pairs), float(params.list_skin), nlist.start, nlist.js, nlist.xref,
+            nlist.meta,
         )
         passes += 1
         # bodies pushed further than half the skin may meet pairs outside the list: rebuild it
@@ -1259,10 +1298,11 @@ class CollisionEffect(Effect):
                        "rotation_projections": 0,
                        "max_overlap_before_lu": 0.0, "max_overlap_after_lu": 0.0}
         self.last: dict = {}
+        self.nlist = NeighbourList()
 
     def __call__(self, sim) -> None:
         st = resolve_collisions(self.system.bodies, self.domain, self.params, 1.0, pairs=self.pairs,
-                                step=sim.step_count)
+                                step=sim.step_count, nlist=self.nlist)
         t = self.totals
         t["calls"] += 1
         for k in ("impulses", "pair_contacts", "wall_contacts", "unresolved"):

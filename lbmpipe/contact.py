@@ -74,7 +74,10 @@ Broad phase (``candidate_pairs``)
 ---------------------------------
 Cell list on bounding spheres (cells of edge ``2 max r_b + margin``), so the cost is linear in
 the number of bodies; periodic axes wrap the cells and the pair gets the minimum-image shift
-``s`` (body 2 is at ``x_2 + s``). A periodic length must be at least two cells.
+``s`` (body 2 is at ``x_2 + s``). A periodic length must be at least two cells. Over time steps
+the collision step keeps a Verlet list (``neighbour_list``, a wider margin) and takes each step's
+pairs from it (``listed_pairs``: the cell scan's pairs in the cell scan's order) until a body has
+moved by half the extra margin.
 """
 
 from __future__ import annotations
@@ -1724,7 +1727,16 @@ def pipe_wall_contact(kind, h, x, R, radius, cx, cy, manifold_tol, nrm, c):
         ax, ay = R[0, 0], R[1, 0]
         bx, by = R[0, 1], R[1, 1]
         samp = np.empty(RIM_SAMPLES)
+        # A rim whose farthest possible point (centre distance + r) stays short of the other
+        # rim's centre distance (at most the other's largest sample: the samples' mean of rho^2
+        # is exact, |e|^2 + r^2 (|a|^2 + |b|^2) / 2) by more than manifold_tol has no candidate
+        # that could count: it is skipped, the same result for half the work (a tilted body)
+        lm = math.sqrt((ox - h[2] * R[0, 2]) ** 2 + (oy - h[2] * R[1, 2]) ** 2)
+        lp = math.sqrt((ox + h[2] * R[0, 2]) ** 2 + (oy + h[2] * R[1, 2]) ** 2)
+        slack = manifold_tol + 1e-9 * (radius + r + h[2])
         for sgn in (-1.0, 1.0):
+            if (lm + r < lp - slack) if sgn < 0.0 else (lp + r < lm - slack):
+                continue
             ex = ox + sgn * h[2] * R[0, 2]
             ey = oy + sgn * h[2] * R[1, 2]
             ez = x[2] + sgn * h[2] * R[2, 2]
@@ -1864,6 +1876,34 @@ def _cell_setup(x, cs, lo, hi, periodic):
     return nc, org, width
 
 
+@njit(cache=True, inline="always")
+def _image_offset(d0, d1, d2, L0, L1, L2, p0, p1, p2):
+    # minimum-image shift (s0, s1, s2) of the separation d on the periodic axes, and the squared
+    # distance after it (scalars only: no array reference counting in the pair loops)
+    s0 = -L0 * math.floor(d0 / L0 + 0.5) if p0 else 0.0
+    s1 = -L1 * math.floor(d1 / L1 + 0.5) if p1 else 0.0
+    s2 = -L2 * math.floor(d2 / L2 + 0.5) if p2 else 0.0
+    d0 += s0
+    d1 += s1
+    d2 += s2
+    return s0, s1, s2, d0 * d0 + d1 * d1 + d2 * d2
+
+
+@njit(cache=True, inline="always")
+def _cell_index(x, i, nc, org, width, periodic):
+    # flat cell of body i (periodic axes wrapped, others clamped)
+    idx = 0
+    for a in range(3):
+        t = (x[i, a] - org[a]) / width[a]
+        ia = int(math.floor(t))
+        if periodic[a]:
+            ia %= nc[a]
+        else:
+            ia = min(nc[a] - 1, max(0, ia))
+        idx = idx * nc[a] + ia
+    return idx
+
+
 @njit(cache=True)
 def _pair_scan(x, rb, margin, lo, hi, periodic, nc, org, width, cell_of, start, members, fill, pi, pj, ps):
     n = x.shape[0]
@@ -1912,23 +1952,10 @@ def _pair_scan(x, rb, margin, lo, hi, periodic, nc, org, width, cell_of, start, 
                         j = members[t]
                         if j <= i:
                             continue
-                        s0 = 0.0
-                        s1 = 0.0
-                        s2 = 0.0
-                        d0 = x[j, 0] - x[i, 0]
-                        d1 = x[j, 1] - x[i, 1]
-                        d2 = x[j, 2] - x[i, 2]
-                        if periodic[0]:
-                            s0 = -L[0] * math.floor(d0 / L[0] + 0.5)
-                        if periodic[1]:
-                            s1 = -L[1] * math.floor(d1 / L[1] + 0.5)
-                        if periodic[2]:
-                            s2 = -L[2] * math.floor(d2 / L[2] + 0.5)
-                        d0 += s0
-                        d1 += s1
-                        d2 += s2
+                        s0, s1, s2, dd = _image_offset(x[j, 0] - x[i, 0], x[j, 1] - x[i, 1], x[j, 2] - x[i, 2],
+                                                       L[0], L[1], L[2], periodic[0], periodic[1], periodic[2])
                         cut = rb[i] + rb[j] + margin
-                        if d0 * d0 + d1 * d1 + d2 * d2 <= cut * cut:
+                        if dd <= cut * cut:
                             if fill:
                                 pi[cnt] = i
                                 pj[cnt] = j
@@ -1951,16 +1978,7 @@ def candidate_pairs(x, rb, margin, lo, hi, periodic):
     ncell = nc[0] * nc[1] * nc[2]
     cell_of = np.empty(n, dtype=np.int64)
     for i in range(n):
-        idx = 0
-        for a in range(3):
-            t = (x[i, a] - org[a]) / width[a]
-            ia = int(math.floor(t))
-            if periodic[a]:
-                ia %= nc[a]
-            else:
-                ia = min(nc[a] - 1, max(0, ia))
-            idx = idx * nc[a] + ia
-        cell_of[i] = idx
+        cell_of[i] = _cell_index(x, i, nc, org, width, periodic)
     start = np.zeros(ncell + 1, dtype=np.int64)
     for i in range(n):
         start[cell_of[i] + 1] += 1
@@ -1979,6 +1997,120 @@ def candidate_pairs(x, rb, margin, lo, hi, periodic):
     ps = np.empty((cnt, 3))
     _pair_scan(x, rb, margin, lo, hi, periodic, nc, org, width, cell_of, start, members, True, pi, pj, ps)
     return pi, pj, ps
+
+
+@njit(cache=True)
+def neighbour_list(x, rb, margin, lo, hi, periodic):
+    """Verlet list for ``listed_pairs``: the ``candidate_pairs`` of ``margin`` as CSR, the
+    partners ``j > i`` of body i in ``js[start[i]:start[i + 1]]``."""
+    pi, pj, _ = candidate_pairs(x, rb, margin, lo, hi, periodic)
+    n = x.shape[0]
+    start = np.zeros(n + 1, dtype=np.int64)
+    for m in range(pi.shape[0]):
+        start[pi[m] + 1] += 1
+    for i in range(n):
+        start[i + 1] += start[i]
+    return start, pj.copy()
+
+
+@njit(cache=True)
+def listed_pairs(x, rb, margin, lo, hi, periodic, start, js):
+    """``candidate_pairs(x, rb, margin, lo, hi, periodic)``, the same pairs, shifts and order,
+    taken from a neighbour list (``neighbour_list``) that holds every pair of them: one built for
+    a margin ``M`` at positions that every body has since left by at most ``d``, with
+    ``margin + 2 d <= M``. A pair's bounding spheres then came within ``M`` of each other when
+    the list was built. The test of each listed pair is the cell scan's, and the pairs of a body
+    are put in the scan's order (its stencil of cells in turn, a cell's bodies by index), so the
+    contacts, and the Gauss-Seidel order of the impulses, are those of ``candidate_pairs``: a
+    list kept over time steps costs 10 distance tests a body instead of the scan's ~120 and
+    changes no result."""
+    n = x.shape[0]
+    rmax = 0.0
+    for i in range(n):
+        rmax = max(rmax, rb[i])
+    nc, org, width = _cell_setup(x, 2.0 * rmax + margin, lo, hi, periodic)
+    cell = np.empty((n, 3), dtype=np.int64)
+    for i in range(n):
+        c = _cell_index(x, i, nc, org, width, periodic)
+        cell[i, 2] = c % nc[2]
+        cell[i, 1] = (c // nc[2]) % nc[1]
+        cell[i, 0] = c // (nc[1] * nc[2])
+    L = np.empty(3)
+    for a in range(3):
+        L[a] = hi[a] - lo[a]
+    cap = js.shape[0]
+    pi = np.empty(cap, dtype=np.int64)
+    pj = np.empty(cap, dtype=np.int64)
+    ps = np.empty((cap, 3))
+    key = np.empty(cap, dtype=np.int64)
+    cnt = 0
+    for i in range(n):
+        first = cnt
+        for t in range(start[i], start[i + 1]):
+            j = js[t]
+            # the cell scan's stencil position of j's cell (offsets -1, 0, 1 per axis; 0, 1 on
+            # a periodic axis of two cells, 0 of one), or none: the scan does not look there
+            st = 0
+            for a in range(3):
+                d = cell[j, a] - cell[i, a]
+                if periodic[a]:
+                    d %= nc[a]
+                    if nc[a] == 1:
+                        o = 0
+                    elif nc[a] == 2:
+                        o = d
+                    elif d == nc[a] - 1:
+                        o = 0
+                    elif d <= 1:
+                        o = d + 1
+                    else:
+                        o = -1
+                elif -1 <= d <= 1:
+                    o = d + 1
+                else:
+                    o = -1
+                if o < 0:
+                    st = -1
+                    break
+                st = st * 3 + o
+            if st < 0:
+                continue
+            s0, s1, s2, dd = _image_offset(x[j, 0] - x[i, 0], x[j, 1] - x[i, 1], x[j, 2] - x[i, 2],
+                                           L[0], L[1], L[2], periodic[0], periodic[1], periodic[2])
+            cut = rb[i] + rb[j] + margin
+            if dd <= cut * cut:
+                # insertion by (stencil position, j): a handful of pairs per body
+                k = st * n + j
+                u = cnt
+                while u > first and key[u - 1] > k:
+                    key[u] = key[u - 1]
+                    pi[u] = i
+                    pj[u] = pj[u - 1]
+                    ps[u, 0], ps[u, 1], ps[u, 2] = ps[u - 1, 0], ps[u - 1, 1], ps[u - 1, 2]
+                    u -= 1
+                key[u] = k
+                pi[u] = i
+                pj[u] = j
+                ps[u, 0], ps[u, 1], ps[u, 2] = s0, s1, s2
+                cnt += 1
+    return pi[:cnt], pj[:cnt], ps[:cnt]
+
+
+@njit(cache=True)
+def list_displacement(x, xref, lo, hi, periodic):
+    """Largest distance of a body from its position in ``xref`` (minimum image on periodic
+    axes: the drift wraps positions into the period)."""
+    dmax = 0.0
+    for i in range(x.shape[0]):
+        s = 0.0
+        for a in range(3):
+            d = x[i, a] - xref[i, a]
+            if periodic[a]:
+                La = hi[a] - lo[a]
+                d -= La * math.floor(d / La + 0.5)
+            s += d * d
+        dmax = max(dmax, s)
+    return math.sqrt(dmax)
 
 
 @njit(cache=True)

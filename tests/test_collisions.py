@@ -1,13 +1,14 @@
 """Impulse collision model (lbmpipe.collisions), Eqs. (16)-(21): conservation laws, restitution,
 hand-worked impacts, overlap control and a long dry run in the pipe."""
 
+import copy
 import math
 import time
 
 import numpy as np
 import pytest
 
-from lbmpipe.collisions import CollisionParams, Domain, resolve_collisions
+from lbmpipe.collisions import CollisionParams, Domain, NeighbourList, resolve_collisions
 from lbmpipe.contact import contact_pair, contact_pipe
 from lbmpipe.rigid import Bodies, drift, quat_from_axis_angle, quat_to_matrix, random_quaternions
 from lbmpipe.shapes import CUBE, CYLINDER, SPHERE
@@ -277,6 +278,28 @@ def _dry_run_bodies(n, radius, length, rng):
                        v=rng.normal(0.0, 0.05, (n, 3)), wb=rng.normal(0.0, 0.02, (n, 3)))
 
 
+def test_a_pair_list_kept_over_steps_changes_no_bit_of_the_trajectory():
+    # 120 spheres and cubes in a pipe, 400 dry steps: the run that keeps its Verlet list and the
+    # run that searches afresh every step must agree bit for bit, and the list must serve
+    # several steps per build
+    rng = np.random.default_rng(3)
+    radius, length = 25.0, 60.0
+    a = _dry_run_bodies(120, radius, length, rng)
+    b = copy.deepcopy(a)
+    dom = Domain.pipe(radius, length)
+    prm = CollisionParams()
+    kept = NeighbourList()
+    for _ in range(400):
+        sa = resolve_collisions(a, dom, prm, 1.0, nlist=kept)
+        sb = resolve_collisions(b, dom, prm, 1.0)
+        assert sa == sb
+        drift(a, 1.0)
+        drift(b, 1.0)
+        for u, w in ((a.x, b.x), (a.v, b.v), (a.q, b.q), (a.wb, b.wb)):
+            np.testing.assert_array_equal(u, w)
+    assert 1 <= kept.builds <= 400 // 3
+
+
 def _independent_overlaps(b, radius, length):
     """Largest pair overlap (all pairs, nearest periodic image) and wall overlap, from the contact
     functions directly, without the broad phase."""
@@ -303,12 +326,13 @@ def test_dry_run_of_200_particles_in_the_pipe_keeps_overlaps_bounded_and_conserv
     prm = CollisionParams()
     e0 = _energy(b)
     pz0 = _momentum(b)[2]
-    resolve_collisions(b, dom, prm, 1.0)  # compile outside the timing
+    nlist = NeighbourList()  # kept over the steps, as the solver keeps it
+    resolve_collisions(b, dom, prm, 1.0, nlist=nlist)  # compile outside the timing
     worst_before = worst_after = 0.0
     impulses = 0
     t0 = time.perf_counter()
     for step in range(10_000):
-        s = resolve_collisions(b, dom, prm, 1.0)
+        s = resolve_collisions(b, dom, prm, 1.0, nlist=nlist)
         drift(b, 1.0)
         worst_before = max(worst_before, s["max_overlap_before"])
         worst_after = max(worst_after, s["max_overlap_after"])
@@ -394,7 +418,7 @@ def test_narrow_phase_gives_exact_touching_contacts_and_lower_bounds_beyond_the_
     # wider pair gaps and wall gaps far from reach may be lower bounds. Everything else in the
     # step relies on exactly this: equal bits at or below contact_gap, never above the true gap.
     from lbmpipe import collisions as C
-    from lbmpipe.contact import bounding_radii
+    from lbmpipe.contact import bounding_radii, candidate_pairs
     from lbmpipe.rigid import quat_to_matrices
 
     radius, length = 6.0, 14.0
@@ -404,7 +428,7 @@ def test_narrow_phase_gives_exact_touching_contacts_and_lower_bounds_beyond_the_
     Rm = quat_to_matrices(b.q)
     rb = bounding_radii(b.kind, b.h)
     gap_c, reach, margin = 0.1, 0.3, 0.8
-    pi, pj, ps = C.candidate_pairs(b.x, rb, margin, lo, hi, periodic)
+    pi, pj, ps = candidate_pairs(b.x, rb, margin, lo, hi, periodic)
     n, npair = b.n, len(pi)
     cg, cn, cc = np.empty(npair), np.empty((npair, 3)), np.empty((npair, 3))
     use, sg = np.zeros((n, 1), dtype=np.bool_), np.empty((n, 1))

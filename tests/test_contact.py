@@ -7,7 +7,8 @@ import numpy as np
 import pytest
 from scipy.optimize import minimize
 
-from lbmpipe.contact import bodies_overlap_ws, candidate_pairs, contact_pair, contact_pipe, contact_plane, new_scratch
+from lbmpipe.contact import (bodies_overlap_ws, candidate_pairs, contact_pair, contact_pipe, contact_plane, list_displacement,
+                             listed_pairs, neighbour_list, new_scratch)
 from lbmpipe.rigid import quat_from_axis_angle, quat_to_matrix, random_quaternions
 from lbmpipe.shapes import CUBE, CYLINDER, SPHERE, support_body
 
@@ -373,6 +374,37 @@ def test_cell_list_finds_exactly_the_pairs_of_an_all_pairs_search_with_periodic_
     assert set(found) == set(expected)
     for k in expected:
         np.testing.assert_allclose(found[k], expected[k])
+
+
+def test_a_verlet_list_gives_the_cell_scans_pairs_in_its_order_while_bodies_stay_within_half_its_skin():
+    # the collision step keeps a list over time steps and must see the same pairs, shifts and
+    # order (its Gauss-Seidel order) as a fresh cell scan: boxes with periodic axes of 1, 2 and
+    # more cells, bodies moved by up to half the list's extra margin and wrapped into the period
+    rng = np.random.default_rng(5)
+    lo = np.array([-25.0, -25.0, 0.0])
+    pairs = 0
+    for trial in range(60):
+        n = int(rng.integers(2, 250))
+        hi = np.array([25.0, 25.0, rng.uniform(20.0, 100.0)])
+        periodic = rng.random(3) < 0.5
+        x = rng.uniform(lo, hi, (n, 3))
+        rb = rng.uniform(0.5, 5.0, n) if trial % 2 else np.full(n, 4.0)
+        margin = rng.uniform(0.0, 2.0)
+        big = margin + rng.uniform(0.0, 3.0)
+        periodic &= (hi - lo) >= 2.0 * (2.0 * rb.max() + big)
+        start, js = neighbour_list(x, rb, big, lo, hi, periodic)
+        d = 0.5 * (big - margin)
+        step = rng.standard_normal((n, 3))
+        step *= (d * rng.random(n) / np.linalg.norm(step, axis=1))[:, None]
+        x1 = x + step
+        x1 = np.where(periodic, lo + np.mod(x1 - lo, hi - lo), x1)
+        assert list_displacement(x1, x, lo, hi, periodic) <= d * (1.0 + 1e-12)
+        expected = candidate_pairs(x1, rb, margin, lo, hi, periodic)
+        got = listed_pairs(x1, rb, margin, lo, hi, periodic, start, js)
+        for a, b in zip(got, expected):
+            np.testing.assert_array_equal(a, b)
+        pairs += len(expected[0])
+    assert pairs > 2000
 
 
 def test_contact_across_a_periodic_boundary_uses_the_nearest_image():
