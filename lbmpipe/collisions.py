@@ -196,11 +196,11 @@ class NeighbourList:
         self.start = np.zeros(1, dtype=np.int64)
         self.js = np.zeros(0, dtype=np.int64)
         self.xref = np.zeros((0, 3))
-        self.meta = np.zeros(3)  # margin built for, built (0/1), number of builds
+        self.meta = np.zeros(2)  # margin built for (0: not built), number of builds
 
     @property
     def builds(self) -> int:
-        return int(self.meta[2])
+        return int(self.meta[1])
 
 
 # stats layout
@@ -965,14 +965,13 @@ def _resolve_kernel(
     margin = reach + skin
     if pairs:
         # the Verlet list (lstart, ljs: neighbour_list), built at lxref for the margin lmeta[0]
-        # (lmeta[1]: built; lmeta[2]: builds), serves while it holds every pair within margin
-        if not (lmeta[1] > 0.0 and lxref.shape[0] == n
+        # (0: none yet; lmeta[1]: builds), serves while it holds every pair within margin
+        if not (lmeta[0] > 0.0 and lxref.shape[0] == n
                 and margin + 2.0 * list_displacement(x, lxref, lo, hi, periodic) <= lmeta[0]):
             lmeta[0] = margin + list_skin
             lstart, ljs = neighbour_list(x, rb, lmeta[0], lo, hi, periodic)
             lxref[:] = x
-            lmeta[1] = 1.0
-            lmeta[2] += 1.0
+            lmeta[1] += 1.0
         pi, pj, ps = listed_pairs(x, rb, margin, lo, hi, periodic, lstart, ljs)
     else:  # one particle, or a scene that asks for wall contacts only
         pi = np.empty(0, dtype=np.int64)
@@ -1243,7 +1242,7 @@ def resolve_collisions(bodies: Bodies, domain: Domain, params: CollisionParams, 
         nlist = NeighbourList()
     if nlist.xref.shape[0] != n:
         nlist.xref = np.zeros((n, 3))
-        nlist.meta[1] = 0.0
+        nlist.meta[0] = 0.0
     passes = 0
     for p in range(4):
         maxdisp, nlist.start, nlist.js = _resolve_kernel(

@@ -1905,11 +1905,9 @@ def _cell_index(x, i, nc, org, width, periodic):
 
 
 @njit(cache=True)
-def _pair_scan(x, rb, margin, lo, hi, periodic, nc, org, width, cell_of, start, members, fill, pi, pj, ps):
-    n = x.shape[0]
-    L = np.empty(3)
-    for a in range(3):
-        L[a] = hi[a] - lo[a]
+def _stencil(nc, periodic):
+    """The cell offsets the pair scan visits per axis, in its order (``offs[a, :noff[a]]``):
+    -1, 0, 1; on a periodic axis of two cells 0, 1 (-1 is +1 there), of one cell 0."""
     noff = np.empty(3, dtype=np.int64)
     offs = np.empty((3, 3), dtype=np.int64)
     for a in range(3):
@@ -1922,6 +1920,16 @@ def _pair_scan(x, rb, margin, lo, hi, periodic, nc, org, width, cell_of, start, 
         else:
             noff[a] = 3
             offs[a, 0], offs[a, 1], offs[a, 2] = -1, 0, 1
+    return noff, offs
+
+
+@njit(cache=True)
+def _pair_scan(x, rb, margin, lo, hi, periodic, nc, org, width, cell_of, start, members, fill, pi, pj, ps):
+    n = x.shape[0]
+    L = np.empty(3)
+    for a in range(3):
+        L[a] = hi[a] - lo[a]
+    noff, offs = _stencil(nc, periodic)
     cnt = 0
     ci = np.empty(3, dtype=np.int64)
     for i in range(n):
@@ -2010,7 +2018,7 @@ def neighbour_list(x, rb, margin, lo, hi, periodic):
         start[pi[m] + 1] += 1
     for i in range(n):
         start[i + 1] += start[i]
-    return start, pj.copy()
+    return start, pj
 
 
 @njit(cache=True)
@@ -2022,8 +2030,8 @@ def listed_pairs(x, rb, margin, lo, hi, periodic, start, js):
     the list was built. The test of each listed pair is the cell scan's, and the pairs of a body
     are put in the scan's order (its stencil of cells in turn, a cell's bodies by index), so the
     contacts, and the Gauss-Seidel order of the impulses, are those of ``candidate_pairs``: a
-    list kept over time steps costs 10 distance tests a body instead of the scan's ~120 and
-    changes no result."""
+    list kept over time steps looks at ~6 listed partners a body instead of the ~55 bodies the
+    scan visits (244 dense 8 mm cylinders) and changes no result."""
     n = x.shape[0]
     rmax = 0.0
     for i in range(n):
@@ -2035,6 +2043,7 @@ def listed_pairs(x, rb, margin, lo, hi, periodic, start, js):
         cell[i, 2] = c % nc[2]
         cell[i, 1] = (c // nc[2]) % nc[1]
         cell[i, 0] = c // (nc[1] * nc[2])
+    noff, offs = _stencil(nc, periodic)
     L = np.empty(3)
     for a in range(3):
         L[a] = hi[a] - lo[a]
@@ -2048,27 +2057,16 @@ def listed_pairs(x, rb, margin, lo, hi, periodic, start, js):
         first = cnt
         for t in range(start[i], start[i + 1]):
             j = js[t]
-            # the cell scan's stencil position of j's cell (offsets -1, 0, 1 per axis; 0, 1 on
-            # a periodic axis of two cells, 0 of one), or none: the scan does not look there
+            # the cell scan's stencil position of j's cell (_stencil), or none: the scan does
+            # not look there
             st = 0
             for a in range(3):
                 d = cell[j, a] - cell[i, a]
-                if periodic[a]:
-                    d %= nc[a]
-                    if nc[a] == 1:
-                        o = 0
-                    elif nc[a] == 2:
-                        o = d
-                    elif d == nc[a] - 1:
-                        o = 0
-                    elif d <= 1:
-                        o = d + 1
-                    else:
-                        o = -1
-                elif -1 <= d <= 1:
-                    o = d + 1
-                else:
-                    o = -1
+                o = -1
+                for u in range(noff[a]):
+                    if (d - offs[a, u]) % nc[a] == 0 if periodic[a] else d == offs[a, u]:
+                        o = u
+                        break
                 if o < 0:
                     st = -1
                     break
