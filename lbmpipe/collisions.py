@@ -81,6 +81,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 from numba import njit, prange
@@ -137,7 +138,12 @@ class Domain:
         return cls(kind="box", lo=lo, hi=hi, periodic=periodic)
 
     def arrays(self):
-        """(code, radius, cx, cy, lo (3,), hi (3,), periodic (3,) bool) for the kernels."""
+        """(code, radius, cx, cy, lo (3,), hi (3,), periodic (3,) bool) for the kernels, made once
+        per domain (the kernels only read them): the collision step asks for them every time step."""
+        return self._arrays
+
+    @cached_property
+    def _arrays(self):
         if self.kind not in ("pipe", "box"):
             raise ValueError(f"Domain.kind must be 'pipe' or 'box', got {self.kind!r}")
         return (
@@ -963,6 +969,20 @@ def _resolve_kernel(
     # gap below which a contact can become active within this step
     reach = contact_gap + (2.0 * vmax * dt if spec else 0.0)
     margin = reach + skin
+    if do_impulses:
+        # A periodic axis shorter than two interaction ranges 2 r_b,max + margin would let a pair
+        # meet two images: refused before anything moves (status 1 + axis; 4 + axis if only the
+        # speculative reach is too long), for resolve_collisions to raise. Checked here, not in
+        # NumPy before the call, since the time step's Python work costs more than its checks.
+        rbmax = 0.0
+        for i in range(n):
+            rbmax = max(rbmax, rb[i])
+        for a in range(3):
+            if periodic[a] and (hi[a] - lo[a]) < 2.0 * (2.0 * rbmax + contact_gap + skin):
+                return 0.0, lstart, ljs, 1 + a
+        for a in range(3):
+            if periodic[a] and (hi[a] - lo[a]) < 2.0 * (2.0 * rbmax + margin):
+                return 0.0, lstart, ljs, 4 + a
     if pairs:
         # the Verlet list (lstart, ljs: neighbour_list), built at lxref for the margin lmeta[0]
         # (0: none yet; lmeta[1]: builds), serves while it holds every pair within margin
@@ -1180,17 +1200,7 @@ def _resolve_kernel(
     stats[_S_OVA] = ova
     stats[_S_PROJ] += it_used
     stats[_S_DISP] = max(stats[_S_DISP], maxdisp)
-    return maxdisp, lstart, ljs
-
-
-def _too_short_axis(domain_arrays, rb_max: float, margin: float) -> int:
-    """The first periodic axis shorter than two interaction ranges ``2 rb_max + margin`` (a pair
-    would interact with two images along it), or -1."""
-    _, _, _, _, lo, hi, periodic = domain_arrays
-    for a in range(3):
-        if periodic[a] and (hi[a] - lo[a]) < 2.0 * (2.0 * rb_max + margin):
-            return a
-    return -1
+    return maxdisp, lstart, ljs, 0
 
 
 def resolve_collisions(bodies: Bodies, domain: Domain, params: CollisionParams, dt: float, pairs: bool = True,
@@ -1213,31 +1223,7 @@ def resolve_collisions(bodies: Bodies, domain: Domain, params: CollisionParams, 
     stats = np.zeros(_NSTATS)
     if n == 0:
         return _stats_dict(stats, 0)
-    dom = domain.arrays()
-    dcode, Rp, cx, cy, lo, hi, periodic = dom
-    rb = bounding_radii(bodies.kind, bodies.h)
-    moving = ~bodies.fixed
-    speed = np.linalg.norm(bodies.v, axis=1) + np.linalg.norm(bodies.wb, axis=1) * rb
-    vmax = float(np.max(speed[moving])) if np.any(moving) else 0.0
-    static_margin = params.contact_gap + params.skin
-    margin = static_margin + (2.0 * vmax * dt if params.speculative else 0.0)
-    rb_max = float(np.max(rb))
-    a = _too_short_axis(dom, rb_max, static_margin)
-    if a >= 0:
-        raise ValueError(
-            f"periodic length {hi[a] - lo[a]:g} along axis {'xyz'[a]} is shorter than two interaction "
-            f"ranges (2 x {2.0 * rb_max + static_margin:g}): a pair would interact with two images"
-        )
-    if margin > static_margin and _too_short_axis(dom, rb_max, margin) >= 0:
-        # The geometry fits; only the speculative reach of a body moving many lattice spacings per
-        # step does not. No physical suspension does that: it is a blown-up run, so report it as one
-        # (the guard's status 'unstable') rather than as a bad domain.
-        from .guard import Unstable
-        k = int(np.argmax(np.where(moving, speed, -1.0)))
-        raise Unstable(f"particle speed {speed[k]:.3g} lattice units per step (translation plus rotation at the "
-                       f"bounding radius) reaches past the periodic images", f"particle {k}", step,
-                       "the fluid-particle coupling went unstable (high Mach number or a thin fluid film)",
-                       "reduce numerics.dt_s, use numerics.collision: trt, or lower the concentration")
+    dcode, Rp, cx, cy, lo, hi, periodic = domain.arrays()
     if nlist is None:
         nlist = NeighbourList()
     if nlist.xref.shape[0] != n:
@@ -1245,7 +1231,7 @@ def resolve_collisions(bodies: Bodies, domain: Domain, params: CollisionParams, 
         nlist.meta[0] = 0.0
     passes = 0
     for p in range(4):
-        maxdisp, nlist.start, nlist.js = _resolve_kernel(
+        maxdisp, nlist.start, nlist.js, status = _resolve_kernel(
             bodies.kind, bodies.h, bodies.mass, bodies.inertia, bodies.x, bodies.v, bodies.q, bodies.wb, bodies.fixed,
             dcode, Rp, cx, cy, lo, hi, periodic,
             float(params.restitution), float(params.contact_gap), bool(params.speculative), float(params.overlap_tol),
@@ -1253,11 +1239,35 @@ def resolve_collisions(bodies: Bodies, domain: Domain, params: CollisionParams, 
             float(dt), p == 0, stats, bool(pairs), float(params.list_skin), nlist.start, nlist.js, nlist.xref,
             nlist.meta,
         )
+        if status:
+            _refuse(status, bodies, params, lo, hi, step)
         passes += 1
         # bodies pushed further than half the skin may meet pairs outside the list: rebuild it
         if maxdisp <= 0.5 * params.skin:
             break
     return _stats_dict(stats, passes)
+
+
+def _refuse(status: int, bodies: Bodies, params: CollisionParams, lo, hi, step: int):
+    """The error for a kernel status (``_resolve_kernel`` leaves the bodies untouched then)."""
+    a = (status - 1) % 3
+    rb = bounding_radii(bodies.kind, bodies.h)
+    if status <= 3:
+        raise ValueError(
+            f"periodic length {hi[a] - lo[a]:g} along axis {'xyz'[a]} is shorter than two interaction "
+            f"ranges (2 x {2.0 * float(np.max(rb)) + params.contact_gap + params.skin:g}): a pair would "
+            f"interact with two images"
+        )
+    # The geometry fits; only the speculative reach of a body moving many lattice spacings per
+    # step does not. No physical suspension does that: it is a blown-up run, so report it as one
+    # (the guard's status 'unstable') rather than as a bad domain.
+    from .guard import Unstable
+    speed = np.linalg.norm(bodies.v, axis=1) + np.linalg.norm(bodies.wb, axis=1) * rb
+    k = int(np.argmax(np.where(~bodies.fixed, speed, -1.0)))
+    raise Unstable(f"particle speed {speed[k]:.3g} lattice units per step (translation plus rotation at the "
+                   f"bounding radius) reaches past the periodic images", f"particle {k}", step,
+                   "the fluid-particle coupling went unstable (high Mach number or a thin fluid film)",
+                   "reduce numerics.dt_s, use numerics.collision: trt, or lower the concentration")
 
 
 def _stats_dict(stats: np.ndarray, passes: int) -> dict:

@@ -353,8 +353,10 @@ def test_dry_run_of_200_particles_in_the_pipe_keeps_overlaps_bounded_and_conserv
 
 def test_a_periodic_length_shorter_than_two_interaction_ranges_is_refused():
     b = Bodies.make(SPHERE, [2.0] * 3, 1.0, [[0.0, 0.0, 1.0], [0.0, 0.0, 6.0]])
-    with pytest.raises(ValueError, match="periodic length"):
+    x = b.x.copy()
+    with pytest.raises(ValueError, match="periodic length 9 along axis z is shorter than two interaction ranges"):
         resolve_collisions(b, Domain.pipe(10.0, 9.0), CollisionParams(), dt=1.0)
+    assert np.array_equal(b.x, x)  # refused before anything moved
 
 
 def test_a_body_moving_past_the_periodic_images_is_reported_unstable_not_as_a_bad_domain():
@@ -364,8 +366,11 @@ def test_a_body_moving_past_the_periodic_images_is_reported_unstable_not_as_a_ba
     b = Bodies.make(SPHERE, [2.0] * 3, 1.0, [[0.0, 0.0, 5.0], [0.0, 0.0, 20.0]])
     resolve_collisions(b, Domain.pipe(10.0, 40.0), CollisionParams(), dt=1.0)  # at rest: accepted
     b.v[1, 2] = 30.0
+    before = [a.copy() for a in (b.x, b.v, b.q, b.wb)]
     with pytest.raises(Unstable, match="unstable at step 7: particle speed 30"):
         resolve_collisions(b, Domain.pipe(10.0, 40.0), CollisionParams(), dt=1.0, step=7)
+    # refused before anything moved
+    assert all(np.array_equal(a, c) for a, c in zip((b.x, b.v, b.q, b.wb), before))
 
 
 def _dense_mixed_bodies(rng, radius, length, spacing=2.05):

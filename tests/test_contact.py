@@ -440,6 +440,50 @@ def test_scalar_support_point_is_bit_identical_to_shapes_support_body():
                 assert list(got) == expect
 
 
+def test_side_against_side_contact_point_is_bit_identical_to_the_general_patch_code():
+    # body_contact_ws finds the contact point of two cylinder sides on scalars (_side_side_patch)
+    # instead of through _manifold_point's scratch views; the two must agree bit for bit, for
+    # parallel, nearly parallel and crossed sides, overlapping, touching end to end or apart
+    from lbmpipe.contact import _F_SIDE, _cyl_feature_kind, _manifold_point, _side_side_patch
+
+    def frame(e, rng):
+        u = np.cross(e, rng.standard_normal(3))
+        u /= np.linalg.norm(u)
+        return np.column_stack([u, np.cross(e, u), e])
+
+    rng = np.random.default_rng(5)
+    ws = new_scratch()
+    kinds = {"crossed": 0, "parallel": 0, "apart": 0}
+    for t in range(3000):
+        n = rng.standard_normal(3)
+        n /= np.linalg.norm(n)
+        h1 = np.array([4.0, 4.0, 4.0])
+        h2 = np.array([4.0, 4.0, 4.0]) if t % 2 else np.array([1.5, 1.5, 6.0])
+        e1 = np.cross(n, rng.standard_normal(3))
+        e1 /= np.linalg.norm(e1)
+        angle = (0.0, 1e-3, 0.02, rng.uniform(0.0, math.pi))[t % 4]
+        e2 = math.cos(angle) * e1 + math.sin(angle) * np.cross(n, e1)
+        # tilts within manifold_tol keep both features sides
+        e2 = e2 + rng.uniform(-1.0, 1.0) * 0.004 * n
+        e2 /= np.linalg.norm(e2)
+        R1, R2 = frame(e1, rng), frame(e2, rng)
+        x1 = rng.standard_normal(3)
+        along = rng.uniform(-11.0, 11.0) * e1 + rng.uniform(-1.0, 1.0) * (0.15 if t % 3 else 3.0) * np.cross(n, e1)
+        x2 = x1 + (h1[0] + h2[0] + rng.uniform(0.0, 0.5)) * n + along
+        base = x1 + h1[0] * n + rng.uniform(-0.1, 0.1, 3)
+        tol = 0.1
+        assert _cyl_feature_kind(h1, R1, n[0], n[1], n[2], tol) == _F_SIDE
+        assert _cyl_feature_kind(h2, R2, -n[0], -n[1], -n[2], tol) == _F_SIDE
+        expect = np.empty(3)
+        _manifold_point(CYLINDER, h1, x1, R1, CYLINDER, h2, x2, R2, n, base, tol, expect, ws)
+        got = _side_side_patch(h1, x1, R1, h2, x2, R2, n[0], n[1], n[2], base[0], base[1], base[2], tol)
+        assert list(got) == list(expect)
+        key = "apart" if list(got) == list(base) else ("crossed" if angle > 0.1 else "parallel")
+        kinds[key] += 1
+    # every branch of the patch was taken many times
+    assert min(kinds.values()) > 100, kinds
+
+
 def test_rim_sample_table_is_bit_identical_to_the_trigonometry_it_replaces():
     # pipe_wall_contact samples each cylinder rim from a table of cos and sin; the table must hold
     # exactly what numba's math.cos and math.sin give at those angles, or the gaps (and every
