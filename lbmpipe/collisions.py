@@ -972,8 +972,8 @@ def _resolve_kernel(
     if do_impulses:
         # A periodic axis shorter than two interaction ranges 2 r_b,max + margin would let a pair
         # meet two images: refused before anything moves (status 1 + axis; 4 + axis if only the
-        # speculative reach is too long), for resolve_collisions to raise. Checked here, not in
-        # NumPy before the call, since the time step's Python work costs more than its checks.
+        # speculative reach is too long), for resolve_collisions to raise. Checked here rather than
+        # with NumPy before the call: run cold after the fluid sweep, those calls took 0.15 ms a step.
         rbmax = 0.0
         for i in range(n):
             rbmax = max(rbmax, rb[i])
@@ -1249,7 +1249,7 @@ def resolve_collisions(bodies: Bodies, domain: Domain, params: CollisionParams, 
 
 
 def _refuse(status: int, bodies: Bodies, params: CollisionParams, lo, hi, step: int):
-    """The error for a kernel status (``_resolve_kernel`` leaves the bodies untouched then)."""
+    """Raise the error of a kernel status (``_resolve_kernel`` has left the bodies untouched)."""
     a = (status - 1) % 3
     rb = bounding_radii(bodies.kind, bodies.h)
     if status <= 3:
