@@ -529,7 +529,10 @@ def _xy_extent(kind, h, R):
     return e
 
 
-_CHUNK = 8  # pairs (or bodies) per parallel work item: few allocations, enough items per thread
+# pairs (or bodies) per parallel work item, each of which allocates its scratch: 8 made ~740
+# allocations a step with 244 dense cylinders; 32 runs the narrow phase in 0.94-0.95 of that time
+# on 1 thread and 0.98 on 2 (same bits), and ~47 items still balance the threads
+_CHUNK = 32
 # a gap this far above the swept distance is certainly still open at the end of the step (far
 # above the gap's accuracy, ~1e-9 of the body size)
 _SWEEP_SLACK = 1e-6
