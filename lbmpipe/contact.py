@@ -738,6 +738,18 @@ _DISC_COS = np.array([math.cos(2.0 * math.pi * r / DISC_SIDES) for r in range(DI
 _DISC_SIN = np.array([math.sin(2.0 * math.pi * r / DISC_SIDES) for r in range(DISC_SIDES)])
 
 
+@njit(cache=True, inline="always")
+def _unit_xy(a, b):
+    """(a, b) / |(a, b)| and |(a, b)|; (1, 0) for the zero vector."""
+    rho = math.sqrt(a * a + b * b)
+    ux = 1.0
+    uy = 0.0
+    if rho > 0.0:
+        ux = a / rho
+        uy = b / rho
+    return ux, uy, rho
+
+
 @njit(cache=True)
 def _feature(kind, h, x, R, n, tol, out, pb):
     """Lab points (rows of ``out``) of the face/edge/vertex of the body that is extreme along the
@@ -798,18 +810,15 @@ def _feature(kind, h, x, R, n, tol, out, pb):
                 pb[r, b] = sb_[r] * h[b]
             m = 4
     else:  # CYLINDER, axis = body z
-        side, cap, dr = _cyl_side_cap(h, d0, d1, d2, tol)
-        cx = 1.0
-        cy = 0.0
-        if dr > 0.0:
-            cx = d0 / dr
-            cy = d1 / dr
+        side, cap, _dr = _cyl_side_cap(h, d0, d1, d2, tol)
+        cx, cy, _dr = _unit_xy(d0, d1)
         zs = h[2] if d2 >= 0.0 else -h[2]
         if side and not cap:
-            pb[0, 0], pb[0, 1], pb[0, 2] = h[0] * cx, h[0] * cy, -h[2]
-            pb[1, 0], pb[1, 1], pb[1, 2] = h[0] * cx, h[0] * cy, h[2]
-            m = 2
-        elif cap:
+            e0, e1 = _side_ends(h, x, R, n[0], n[1], n[2])
+            out[0, 0], out[0, 1], out[0, 2] = e0
+            out[1, 0], out[1, 1], out[1, 2] = e1
+            return 2
+        if cap:
             for r in range(DISC_SIDES):
                 pb[r, 0] = h[0] * _DISC_COS[r]
                 pb[r, 1] = h[0] * _DISC_SIN[r]
@@ -852,16 +861,11 @@ def _cyl_feature_kind(h, R, n0, n1, n2, tol):
 
 @njit(cache=True, inline="always")
 def _side_ends(h, x, R, n0, n1, n2):
-    """The two ends of the side segment of a cylinder extreme along the lab direction n, as
-    ``_feature`` computes them (same operations, so the same bits)."""
+    """The two ends of the side segment of a cylinder extreme along the lab direction n (the
+    feature ``_feature`` returns for a side)."""
     d0 = R[0, 0] * n0 + R[1, 0] * n1 + R[2, 0] * n2
     d1 = R[0, 1] * n0 + R[1, 1] * n1 + R[2, 1] * n2
-    dr = math.sqrt(d0 * d0 + d1 * d1)
-    cx = 1.0
-    cy = 0.0
-    if dr > 0.0:
-        cx = d0 / dr
-        cy = d1 / dr
+    cx, cy, _dr = _unit_xy(d0, d1)
     s0 = h[0] * cx
     s1 = h[0] * cy
     lo = -h[2]
@@ -876,7 +880,7 @@ def _side_ends(h, x, R, n0, n1, n2):
 
 @njit(cache=True, inline="always")
 def _in_segment(px, py, a0, a1, b0, b1, tol):
-    # _in_poly for a segment a-b (m = 2), on scalars
+    # is (px, py) within tol of the segment a-b (``_in_poly`` of a polygon of 2 points)
     dx = b0 - a0
     dy = b1 - a1
     ll = dx * dx + dy * dy
@@ -898,25 +902,7 @@ def _side_side_patch(h1, x1, R1, h2, x2, R2, n0, n1, n2, b0, b1, b2, tol):
     (a test pins the two together); b itself where the segments do not meet."""
     e10, e11 = _side_ends(h1, x1, R1, n0, n1, n2)
     e20, e21 = _side_ends(h2, x2, R2, -n0, -n1, -n2)
-    # _plane_basis
-    ax = 0
-    if abs(n1) < abs(n0):
-        ax = 1
-    if abs(n2) < abs((n0, n1)[ax]):
-        ax = 2
-    u0 = 1.0 if ax == 0 else 0.0
-    u1 = 1.0 if ax == 1 else 0.0
-    u2 = 1.0 if ax == 2 else 0.0
-    t10 = n1 * u2 - n2 * u1
-    t11 = n2 * u0 - n0 * u2
-    t12 = n0 * u1 - n1 * u0
-    l1 = math.sqrt(t10 * t10 + t11 * t11 + t12 * t12)
-    t10 /= l1
-    t11 /= l1
-    t12 /= l1
-    t20 = n1 * t12 - n2 * t11
-    t21 = n2 * t10 - n0 * t12
-    t22 = n0 * t11 - n1 * t10
+    (t10, t11, t12), (t20, t21, t22) = _plane_axes(n0, n1, n2)
     # _to_plane: the four ends in the plane
     pts = ((e10[0] - b0, e10[1] - b1, e10[2] - b2), (e11[0] - b0, e11[1] - b1, e11[2] - b2),
            (e20[0] - b0, e20[1] - b1, e20[2] - b2), (e21[0] - b0, e21[1] - b1, e21[2] - b2))
@@ -982,16 +968,7 @@ def _in_poly(px, py, P, m, tol):
     if m == 1:
         return (px - P[0, 0]) ** 2 + (py - P[0, 1]) ** 2 <= tol * tol
     if m == 2:
-        dx = P[1, 0] - P[0, 0]
-        dy = P[1, 1] - P[0, 1]
-        ll = dx * dx + dy * dy
-        t = 0.0
-        if ll > 0.0:
-            t = ((px - P[0, 0]) * dx + (py - P[0, 1]) * dy) / ll
-            t = min(1.0, max(0.0, t))
-        ex = P[0, 0] + t * dx - px
-        ey = P[0, 1] + t * dy - py
-        return ex * ex + ey * ey <= tol * tol
+        return _in_segment(px, py, P[0, 0], P[0, 1], P[1, 0], P[1, 1], tol)
     for r in range(m):
         s = (r + 1) % m
         dx = P[s, 0] - P[r, 0]
@@ -1099,23 +1076,33 @@ def _extreme_midpoint(pts, k, out):
     return True
 
 
-@njit(cache=True)
-def _plane_basis(n, t1, t2):
+@njit(cache=True, inline="always")
+def _plane_axes(n0, n1, n2):
+    """Unit axes t1 = n x e / |n x e| (e the lab axis least aligned with n) and t2 = n x t1 of
+    the plane normal to the unit vector n, as tuples."""
     ax = 0
-    if abs(n[1]) < abs(n[ax]):
+    if abs(n1) < abs(n0):
         ax = 1
-    if abs(n[2]) < abs(n[ax]):
+    if abs(n2) < abs((n0, n1)[ax]):
         ax = 2
     u0 = 1.0 if ax == 0 else 0.0
     u1 = 1.0 if ax == 1 else 0.0
     u2 = 1.0 if ax == 2 else 0.0
-    t1[0] = n[1] * u2 - n[2] * u1  # n x e_ax
-    t1[1] = n[2] * u0 - n[0] * u2
-    t1[2] = n[0] * u1 - n[1] * u0
-    l1 = math.sqrt(_dot(t1, t1))
-    for k in range(3):
-        t1[k] /= l1
-    _cross_into(n, t1, t2)
+    t10 = n1 * u2 - n2 * u1
+    t11 = n2 * u0 - n0 * u2
+    t12 = n0 * u1 - n1 * u0
+    l1 = math.sqrt(t10 * t10 + t11 * t11 + t12 * t12)
+    t10 /= l1
+    t11 /= l1
+    t12 /= l1
+    return (t10, t11, t12), (n1 * t12 - n2 * t11, n2 * t10 - n0 * t12, n0 * t11 - n1 * t10)
+
+
+@njit(cache=True)
+def _plane_basis(n, t1, t2):
+    a, b = _plane_axes(n[0], n[1], n[2])
+    t1[0], t1[1], t1[2] = a
+    t2[0], t2[1], t2[2] = b
 
 
 @njit(cache=True)
@@ -1847,12 +1834,7 @@ def pipe_wall_contact(kind, h, x, R, radius, cx, cy, manifold_tol, nrm, c):
     ox = x[0] - cx
     oy = x[1] - cy
     if kind == SPHERE:
-        rho = math.sqrt(ox * ox + oy * oy)
-        ux = 1.0
-        uy = 0.0
-        if rho > 0.0:
-            ux = ox / rho
-            uy = oy / rho
+        ux, uy, rho = _unit_xy(ox, oy)
         nrm[0], nrm[1], nrm[2] = ux, uy, 0.0
         c[0] = x[0] + h[0] * ux
         c[1] = x[1] + h[0] * uy
@@ -2247,16 +2229,12 @@ def listed_pairs(x, rb, margin, lo, hi, periodic, start, js):
 def list_displacement(x, xref, lo, hi, periodic):
     """Largest distance of a body from its position in ``xref`` (minimum image on periodic
     axes: the drift wraps positions into the period)."""
+    L0, L1, L2 = hi[0] - lo[0], hi[1] - lo[1], hi[2] - lo[2]
     dmax = 0.0
     for i in range(x.shape[0]):
-        s = 0.0
-        for a in range(3):
-            d = x[i, a] - xref[i, a]
-            if periodic[a]:
-                La = hi[a] - lo[a]
-                d -= La * math.floor(d / La + 0.5)
-            s += d * d
-        dmax = max(dmax, s)
+        _s0, _s1, _s2, dd = _image_offset(x[i, 0] - xref[i, 0], x[i, 1] - xref[i, 1], x[i, 2] - xref[i, 2],
+                                          L0, L1, L2, periodic[0], periodic[1], periodic[2])
+        dmax = max(dmax, dd)
     return math.sqrt(dmax)
 
 
