@@ -388,6 +388,29 @@ def _dense_mixed_bodies(rng, radius, length, spacing=2.05):
                        wb=rng.normal(0.0, 0.05, (n, 3)))
 
 
+def test_largest_overlap_reported_after_a_call_is_the_one_measured_afresh_on_the_returned_bodies():
+    # After the projection the kernel takes the overlap of a contact whose bodies have not moved
+    # since it was measured from the stored gap instead of measuring it again: measured afresh,
+    # the returned bodies must show exactly the overlap it reports. Start overlapping (grid closer
+    # than the body size, pipe narrower than the grid) so that pairs and walls both overlap.
+    from lbmpipe.contact import bounding_radii, candidate_pairs
+
+    for seed in range(3):
+        radius, length = 6.0, 14.0
+        b = _dense_mixed_bodies(np.random.default_rng(seed), radius, length, spacing=1.97)
+        dom = Domain.pipe(radius - 0.35, length)
+        s = resolve_collisions(b, dom, CollisionParams(), 1.0)
+        _dcode, _rp, _cx, _cy, lo, hi, periodic = dom.arrays()
+        pi, pj, ps = candidate_pairs(b.x, bounding_radii(b.kind, b.h), 0.5, lo, hi, periodic)
+        fresh = 0.0
+        for i, j, sh in zip(pi, pj, ps):
+            fresh = max(fresh, -contact_pair(b.kind[i], b.h[i], b.x[i], b.q[i], b.kind[j], b.h[j], b.x[j] + sh,
+                                             b.q[j])[0])
+        walls = max(-contact_pipe(b.kind[i], b.h[i], b.x[i], b.q[i], dom.radius)[0] for i in range(b.n))
+        assert s["max_overlap_before"] > 0.02 and walls > 0.0  # there was something to remove
+        assert s["max_overlap_after"] == max(fresh, walls, 0.0)
+
+
 def test_dense_suspension_gives_bit_identical_results_on_1_and_2_threads():
     # the narrow phase and the contact tests run in parallel; each pair writes only its own
     # entries and the impulses are applied in a fixed order, so the thread count must not
