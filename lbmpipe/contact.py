@@ -811,13 +811,12 @@ def _feature(kind, h, x, R, n, tol, out, pb):
             m = 4
     else:  # CYLINDER, axis = body z
         side, cap, _dr = _cyl_side_cap(h, d0, d1, d2, tol)
-        cx, cy, _dr = _unit_xy(d0, d1)
-        zs = h[2] if d2 >= 0.0 else -h[2]
         if side and not cap:
             e0, e1 = _side_ends(h, x, R, n[0], n[1], n[2])
             out[0, 0], out[0, 1], out[0, 2] = e0
             out[1, 0], out[1, 1], out[1, 2] = e1
             return 2
+        zs = h[2] if d2 >= 0.0 else -h[2]
         if cap:
             for r in range(DISC_SIDES):
                 pb[r, 0] = h[0] * _DISC_COS[r]
@@ -825,6 +824,7 @@ def _feature(kind, h, x, R, n, tol, out, pb):
                 pb[r, 2] = zs
             m = DISC_SIDES
         else:
+            cx, cy, _dr = _unit_xy(d0, d1)
             pb[0, 0], pb[0, 1], pb[0, 2] = h[0] * cx, h[0] * cy, zs
             m = 1
     for r in range(m):
