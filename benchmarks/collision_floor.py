@@ -63,6 +63,7 @@ from lbmpipe.collisions import (  # noqa: E402
     _gs_sweep,
     _impulse_terms,
     _measure_pair,
+    lab_omegas,
     resolve_collisions,
 )  # noqa: E402
 from lbmpipe.contact import (  # noqa: E402
@@ -193,9 +194,10 @@ def _respond(ci, cj, cn, g, v, wb, Rm, im, k_rest, vtol, max_sweeps):
     ver = np.zeros(v.shape[0], dtype=np.int64)
     e1 = np.full(ci.shape[0], -1, dtype=np.int64)
     e2 = np.full(ci.shape[0], -1, dtype=np.int64)
+    wl = lab_omegas(wb, Rm)
     nimp = 0
     for s in range(max_sweeps):
-        applied = _gs_sweep(act, ci.shape[0], ci, cj, cn, g, v, wb, Rm, im, k_rest, vtol, ver, e1, e2)
+        applied = _gs_sweep(act, ci.shape[0], ci, cj, cn, g, v, wb, wl, Rm, im, k_rest, vtol, ver, e1, e2)
         nimp += applied
         if applied == 0:
             return nimp, s + 1

@@ -1719,6 +1719,34 @@ def _cyl_candidate(k, X1, E1, U1, V1, r1, l1, X2, E2, U2, V2, r2, l2):
 
 
 @njit(cache=True, inline="always")
+def _leans_more(X1, E1, X2, E2):
+    """Does cylinder 1's axis lean towards the centre line at least as much as cylinder 2's?"""
+    d0 = X2[0] - X1[0]
+    d1 = X2[1] - X1[1]
+    d2 = X2[2] - X1[2]
+    return abs(E1[0] * d0 + E1[1] * d1 + E1[2] * d2) >= abs(E2[0] * d0 + E2[1] * d1 + E2[2] * d2)
+
+
+@njit(cache=True, inline="always")
+def _try_order(s, lean1):
+    """The candidate (``_cyl_candidate``) to try s-th. A rim faces the other body only if its axis
+    leans towards the centre line more than the other's: of 5,924 pairs of dense 8 mm cylinders,
+    rim 1 - side 2 never won with |E1 . d| < |E2 . d|, nor rim 2 - side 1 with
+    |E1 . d| >= |E2 . d|. So after the closed forms the more leaning body's rim-side search goes
+    first, then rim-rim, and the other rim-side after them: 0.66 of the Newton searches of the
+    order of ``_cyl_candidate``. The candidates are independent and a certified one is the gap
+    within ``_EXACT_TOL`` (never were two certified in those pairs), so the order sets the time,
+    not the result."""
+    if s == 3:
+        return 3 if lean1 else 4
+    if s == 4:
+        return 5
+    if s == 5:
+        return 4 if lean1 else 3
+    return s
+
+
+@njit(cache=True, inline="always")
 def _cyl_frames(h1, x1, R1, h2, x2, R2):
     return ((x1[0], x1[1], x1[2]), (R1[0, 2], R1[1, 2], R1[2, 2]), (R1[0, 0], R1[1, 0], R1[2, 0]),
             (R1[0, 1], R1[1, 1], R1[2, 1]), h1[0], h1[2],
@@ -1733,8 +1761,9 @@ def _cylinder_gap(h1, x1, R1, h2, x2, R2):
     cost as much as a rim-side contact's arithmetic."""
     X1, E1, U1, V1, r1, l1, X2, E2, U2, V2, r2, l2 = _cyl_frames(h1, x1, R1, h2, x2, R2)
     tol = _EXACT_TOL * (math.sqrt(r1 * r1 + l1 * l1) + math.sqrt(r2 * r2 + l2 * l2))
-    for k in range(_N_CANDIDATES):
-        ok, a, b = _cyl_candidate(k, X1, E1, U1, V1, r1, l1, X2, E2, U2, V2, r2, l2)
+    lean1 = _leans_more(X1, E1, X2, E2)
+    for s in range(_N_CANDIDATES):
+        ok, a, b = _cyl_candidate(_try_order(s, lean1), X1, E1, U1, V1, r1, l1, X2, E2, U2, V2, r2, l2)
         if not ok:
             continue
         g = _certified_gap(X1, E1, r1, l1, X2, E2, r2, l2, a[0], a[1], a[2], b[0], b[1], b[2], tol)
@@ -1747,10 +1776,10 @@ def _cylinder_gap(h1, x1, R1, h2, x2, R2):
 def cylinder_gap_exact(h1, x1, R1, h2, x2, R2, nrm, pa, pb):
     """Gap of two separated cylinders (half-extents h = (radius, -, half length), centres x,
     rotation matrices R body->lab, axis = body z) without GJK. The closest points lie on one of
-    five feature pairs, tried from the cheapest (``_cyl_candidate``): side-side (closest points of
-    the two axes, closed form), a cap against the other body (its support point projected on the
-    cap's plane, closed form; each body's cap in turn), a rim against a side (each way) and
-    rim-rim (one angle each, by Newton's method). The first candidate whose distance meets the
+    five feature pairs (``_cyl_candidate``, tried in the order of ``_try_order``): side-side
+    (closest points of the two axes, closed form), a cap against the other body (its support point
+    projected on the cap's plane, closed form; each body's cap in turn), a rim against a side (each
+    way) and rim-rim (one angle each, by Newton's method). The first candidate whose distance meets the
     separating-axis lower bound along its own direction within ``_EXACT_TOL`` of the size is the
     gap, as exact as GJK's. Writes the unit normal from 1 to 2 into ``nrm`` and the witness points
     into ``pa``, ``pb``; returns -1 if no candidate is certified (overlapping or touching bodies,
@@ -1788,8 +1817,9 @@ def cylinders_overlap_exact(h1, x1, R1, h2, x2, R2):
     time-of-impact bisection asks only this."""
     X1, E1, U1, V1, r1, l1, X2, E2, U2, V2, r2, l2 = _cyl_frames(h1, x1, R1, h2, x2, R2)
     tol = _EXACT_TOL * (math.sqrt(r1 * r1 + l1 * l1) + math.sqrt(r2 * r2 + l2 * l2))
-    for k in range(_N_CANDIDATES):
-        ok, a, b = _cyl_candidate(k, X1, E1, U1, V1, r1, l1, X2, E2, U2, V2, r2, l2)
+    lean1 = _leans_more(X1, E1, X2, E2)
+    for s in range(_N_CANDIDATES):
+        ok, a, b = _cyl_candidate(_try_order(s, lean1), X1, E1, U1, V1, r1, l1, X2, E2, U2, V2, r2, l2)
         if not ok:
             continue
         if _inside_cyl(a, X2, E2, r2, l2, tol) or _inside_cyl(b, X1, E1, r1, l1, tol):

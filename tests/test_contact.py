@@ -216,6 +216,45 @@ def test_exact_cylinder_gap_equals_gjk_for_random_separated_pairs_of_the_paper_s
     assert certified >= 0.98 * separated
 
 
+def test_exact_cylinder_gap_is_certified_by_one_feature_pair_only_so_the_try_order_changes_no_bit():
+    # _cylinder_gap tries the rim-side searches in an order set by the axes' lean towards the
+    # centre line; the result is the fixed order's as long as no two candidates are certified
+    from lbmpipe.contact import (_EXACT_TOL, _N_CANDIDATES, _certified_gap, _cyl_candidate, _cyl_frames,
+                                 cylinder_gap_exact)
+
+    rng = np.random.default_rng(11)
+    nrm, pa, pb = np.empty(3), np.empty(3), np.empty(3)
+    checked = reordered = 0
+    for shapes in (((4.0, 4.0), (4.0, 4.0)), ((4.0, 4.0), (8.0, 12.0)), ((8.0, 8.0), (4.0, 8.0))):
+        h1, h2 = (np.array([r, r, l]) for r, l in shapes)
+        reach = math.hypot(*shapes[0]) + math.hypot(*shapes[1])
+        for _ in range(400):
+            q = random_quaternions(2, rng)
+            R1, R2 = quat_to_matrix(q[0]), quat_to_matrix(q[1])
+            d = rng.standard_normal(3)
+            x2 = d / np.linalg.norm(d) * rng.uniform(0.5, 1.0) * reach
+            fr = _cyl_frames(h1, np.zeros(3), R1, h2, x2, R2)
+            X1, E1, U1, V1, r1, l1, X2, E2, U2, V2, r2, l2 = fr
+            tol = _EXACT_TOL * (math.hypot(r1, l1) + math.hypot(r2, l2))
+            found = []
+            for k in range(_N_CANDIDATES):
+                ok, a, b = _cyl_candidate(k, *fr)
+                if ok:
+                    g = _certified_gap(X1, E1, r1, l1, X2, E2, r2, l2, *a, *b, tol)
+                    if g >= 0.0:
+                        found.append((k, g, a, b))
+            assert len(found) <= 1
+            g = cylinder_gap_exact(h1, np.zeros(3), R1, h2, x2, R2, nrm, pa, pb)
+            if not found:
+                assert g == -1.0
+                continue
+            k, g0, a, b = found[0]
+            checked += 1
+            reordered += k in (4, 5)
+            assert g == g0 and tuple(pa) == a and tuple(pb) == b  # bit for bit
+    assert checked > 400 and reordered > 80
+
+
 def test_exact_cylinder_gap_of_crossed_sides_a_cap_under_a_tilted_rim_and_two_rims():
     from lbmpipe.contact import cylinder_gap_exact
 
