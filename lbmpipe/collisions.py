@@ -327,9 +327,10 @@ def _gs_sweep(act, nact, ci, cj, p, g, v, wb, wl, Rm, im, k_rest, vtol, ver, ev1
     terms g[m] of ``_impulse_terms``) gets its impulse if it approaches. ``ver`` counts the
     impulses each body has received; a contact whose bodies have the counts of its last
     evaluation (``ev1``, ``ev2``) gives what it gave then: no impulse (after one it recedes, -k
-    times as fast), and is skipped. ``wl`` holds A wb of every body (``lab_omegas``) and is kept
-    up to date with ``wb``: an evaluation reads it instead of turning wb into the lab frame again
-    (twice per evaluation, ~3 evaluations per impulse). Returns the number of impulses applied.
+    times as fast), and is skipped. ``wl`` holds A wb of the contacts' bodies (``lab_omegas``)
+    and is kept up to date with ``wb``: an evaluation reads it instead of turning wb into the lab
+    frame again (twice per evaluation, ~3 evaluations per impulse). Returns the number of impulses
+    applied.
 
     The arithmetic is written out in the loop, indexed by row: a function called per contact with
     array arguments keeps their reference counting even when numba inlines it. In a small loop
@@ -386,10 +387,14 @@ def _impulse(i, j, sx, sy, sz, c, p, x, v, wb, Rm, im, iinv, k_rest, vtol):
         pr[0, k] = p[k]
         cr[0, k] = c[k]
     _impulse_terms(i, j, sx, sy, sz, cr, pr, 0, x, Rm, im, iinv, g, 0)
+    # the sweep reads the lab-frame spin of this contact's bodies only
+    wl = np.empty_like(wb)
+    _lab_omega(i, wb, Rm, wl)
+    if j >= 0:
+        _lab_omega(j, wb, Rm, wl)
     ev = np.full(1, -1, dtype=np.int64)
-    return _gs_sweep(np.zeros(1, dtype=np.int64), 1, np.full(1, i), np.full(1, j), pr, g, v, wb, lab_omegas(wb, Rm), Rm,
-                     im, k_rest, vtol,
-                     np.zeros(v.shape[0], dtype=np.int64), ev, ev.copy()) > 0
+    return _gs_sweep(np.zeros(1, dtype=np.int64), 1, np.full(1, i), np.full(1, j), pr, g, v, wb, wl, Rm, im, k_rest,
+                     vtol, np.zeros(v.shape[0], dtype=np.int64), ev, ev.copy()) > 0
 
 
 @njit(cache=True)
