@@ -87,8 +87,8 @@ import numpy as np
 from numba import njit, prange
 
 from .effects import Effect
-from .contact import (WS_SIZE, _support3, _ws_rows, bodies_overlap_ws, body_contact_ws, bounding_radii,
-                      list_displacement, listed_pairs, neighbour_list, new_scratch, pipe_wall_contact,
+from .contact import (_WS_HINT, _WS_WON, WS_SIZE, _support3, _ws_rows, bodies_overlap_ws, body_contact_ws,
+                      bounding_radii, list_displacement, listed_slots, neighbour_list, new_scratch, pipe_wall_contact,
                       plane_wall_contact)
 from .shapes import CYLINDER, SPHERE, bounding_radius
 from .rigid import Bodies, _qmul, quat_to_matrix, quat_to_matrices
@@ -201,6 +201,7 @@ class NeighbourList:
     def __init__(self):
         self.start = np.zeros(1, dtype=np.int64)
         self.js = np.zeros(0, dtype=np.int64)
+        self.win = np.zeros(0, dtype=np.int8)  # per slot: the exact cylinder candidate that won last
         self.xref = np.zeros((0, 3))
         self.meta = np.zeros(2)  # margin built for (0: not built), number of builds
 
@@ -637,7 +638,7 @@ def _wall_one(i, kind, h, x, Rm, rb, dcode, Rp, cx, cy, lo, hi, periodic, margin
 
 
 @njit(cache=True)
-def _narrow_chunk(ch, ncp, kind, h, x, Rm, rb, pi, pj, ps, max_gap, manifold_tol, cg, cn, cc,
+def _narrow_chunk(ch, ncp, kind, h, x, Rm, rb, pi, pj, ps, pk, lwin, max_gap, manifold_tol, cg, cn, cc,
                   dcode, Rp, cx, cy, lo, hi, periodic, margin, reach, use, sg, sn, sc):
     """Work item ``ch`` of the narrow phase: pairs ``ch * _CHUNK ...`` if ``ch < ncp``, else the
     wall contacts of bodies ``(ch - ncp) * _CHUNK ...``."""
@@ -673,8 +674,12 @@ def _narrow_chunk(ch, ncp, kind, h, x, Rm, rb, pi, pj, ps, max_gap, manifold_tol
                     for k in range(3):
                         cc[m, k] = 0.5 * (x[i, k] + x2[k])
                     continue
+            # the pair's closest features of the step before, in its list slot, go first
+            ws[_WS_HINT] = lwin[pk[m]]
+            ws[_WS_WON] = -1.0  # stays for a pair that is not two cylinders
             cg[m] = body_contact_ws(kind[i], h[i], x[i], Rm[i], kind[j], h[j], x2, Rm[j], max_gap, manifold_tol, nrm,
                                     c, ws)
+            lwin[pk[m]] = int(ws[_WS_WON])
             for k in range(3):
                 cn[m, k] = nrm[k]
                 cc[m, k] = c[k]
@@ -686,29 +691,31 @@ def _narrow_chunk(ch, ncp, kind, h, x, Rm, rb, pi, pj, ps, max_gap, manifold_tol
 
 
 @njit(cache=True, parallel=True)
-def _narrow_par(ncp, nch, kind, h, x, Rm, rb, pi, pj, ps, max_gap, manifold_tol, cg, cn, cc,
+def _narrow_par(ncp, nch, kind, h, x, Rm, rb, pi, pj, ps, pk, lwin, max_gap, manifold_tol, cg, cn, cc,
                 dcode, Rp, cx, cy, lo, hi, periodic, margin, reach, use, sg, sn, sc):
     for ch in prange(nch):
-        _narrow_chunk(ch, ncp, kind, h, x, Rm, rb, pi, pj, ps, max_gap, manifold_tol, cg, cn, cc,
+        _narrow_chunk(ch, ncp, kind, h, x, Rm, rb, pi, pj, ps, pk, lwin, max_gap, manifold_tol, cg, cn, cc,
                       dcode, Rp, cx, cy, lo, hi, periodic, margin, reach, use, sg, sn, sc)
 
 
 @njit(cache=True)
-def _narrow_phase(kind, h, x, Rm, rb, pi, pj, ps, max_gap, manifold_tol, cg, cn, cc,
+def _narrow_phase(kind, h, x, Rm, rb, pi, pj, ps, pk, lwin, max_gap, manifold_tol, cg, cn, cc,
                   dcode, Rp, cx, cy, lo, hi, periodic, margin, reach, use, sg, sn, sc):
     """All pair gaps (``cg``, normals ``cn``, points ``cc``) and the wall gaps per body and slot
     (``_wall_one``), in one parallel region if there are enough pairs (its start-up costs more
     than a small problem's work, and far more on a loaded machine). Every pair and body writes
     only its own rows, so the result does not depend on the thread count. Pair gaps above
-    ``max_gap`` may come back as lower bounds (> max_gap)."""
+    ``max_gap`` may come back as lower bounds (> max_gap). ``lwin[pk[m]]``: pair m's exact
+    cylinder candidate of the step before, to try first (``contact._cylinder_gap``), replaced by
+    this step's; each pair has its own slot."""
     ncp = (pi.shape[0] + _CHUNK - 1) // _CHUNK
     nch = ncp + (x.shape[0] + _CHUNK - 1) // _CHUNK
     if pi.shape[0] >= _PAR_MIN_PAIRS:
-        _narrow_par(ncp, nch, kind, h, x, Rm, rb, pi, pj, ps, max_gap, manifold_tol, cg, cn, cc,
+        _narrow_par(ncp, nch, kind, h, x, Rm, rb, pi, pj, ps, pk, lwin, max_gap, manifold_tol, cg, cn, cc,
                     dcode, Rp, cx, cy, lo, hi, periodic, margin, reach, use, sg, sn, sc)
     else:
         for ch in range(nch):
-            _narrow_chunk(ch, ncp, kind, h, x, Rm, rb, pi, pj, ps, max_gap, manifold_tol, cg, cn, cc,
+            _narrow_chunk(ch, ncp, kind, h, x, Rm, rb, pi, pj, ps, pk, lwin, max_gap, manifold_tol, cg, cn, cc,
                           dcode, Rp, cx, cy, lo, hi, periodic, margin, reach, use, sg, sn, sc)
 
 
@@ -776,7 +783,9 @@ def _test_scratch():
     """Scratch of ``_activate_one``: the contact scratch (``new_scratch``), then its own arrays
     (normal, point, the two bodies' trial centres and rotations), in one buffer: each array passed
     to a function costs a reference count."""
-    return np.empty(WS_SIZE + 30)
+    scr = np.empty(WS_SIZE + 30)
+    scr[_WS_HINT] = -1.0
+    return scr
 
 
 @njit(cache=True, inline="always")
@@ -1000,11 +1009,29 @@ def _final_overlap(kind, h, x, Rm, pi, pj, ps, cg, wi, wg, wn, d1, d2, dw, disp,
 
 
 @njit(cache=True)
+def _carry_hints(ostart, ojs, owin, nstart, njs):
+    """The exact cylinder candidates of the pairs of a rebuilt Verlet list, taken from the old
+    list where it held the pair (-1 elsewhere): a rebuild would otherwise make every pair search
+    its candidates from the start for a step."""
+    win = np.full(njs.shape[0], -1, dtype=np.int8)
+    if ostart.shape[0] != nstart.shape[0] or owin.shape[0] != ojs.shape[0]:
+        return win
+    for i in range(nstart.shape[0] - 1):
+        for t in range(nstart[i], nstart[i + 1]):
+            j = njs[t]
+            for u in range(ostart[i], ostart[i + 1]):
+                if ojs[u] == j:
+                    win[t] = owin[u]
+                    break
+    return win
+
+
+@njit(cache=True)
 def _resolve_kernel(
     kind, h, mass, inertia, x, v, q, wb, fixed,
     dcode, Rp, cx, cy, lo, hi, periodic,
     k_rest, contact_gap, spec, overlap_tol, manifold_tol, skin, max_sweeps, max_proj, dt,
-    do_impulses, stats, pairs, list_skin, lstart, ljs, lxref, lmeta,
+    do_impulses, stats, pairs, list_skin, lstart, ljs, lwin, lxref, lmeta,
 ):
     n = x.shape[0]
     Rm = quat_to_matrices(q)
@@ -1036,24 +1063,27 @@ def _resolve_kernel(
             rbmax = max(rbmax, rb[i])
         for a in range(3):
             if periodic[a] and (hi[a] - lo[a]) < 2.0 * (2.0 * rbmax + contact_gap + skin):
-                return 0.0, lstart, ljs, 1 + a
+                return 0.0, lstart, ljs, lwin, 1 + a
         for a in range(3):
             if periodic[a] and (hi[a] - lo[a]) < 2.0 * (2.0 * rbmax + margin):
-                return 0.0, lstart, ljs, 4 + a
+                return 0.0, lstart, ljs, lwin, 4 + a
     if pairs:
         # the Verlet list (lstart, ljs: neighbour_list), built at lxref for the margin lmeta[0]
         # (0: none yet; lmeta[1]: builds), serves while it holds every pair within margin
         if not (lmeta[0] > 0.0 and lxref.shape[0] == n
                 and margin + 2.0 * list_displacement(x, lxref, lo, hi, periodic) <= lmeta[0]):
             lmeta[0] = margin + list_skin
+            ostart, ojs, owin = lstart, ljs, lwin
             lstart, ljs = neighbour_list(x, rb, lmeta[0], lo, hi, periodic)
+            lwin = _carry_hints(ostart, ojs, owin, lstart, ljs)
             lxref[:] = x
             lmeta[1] += 1.0
-        pi, pj, ps = listed_pairs(x, rb, margin, lo, hi, periodic, lstart, ljs)
+        pi, pj, ps, pk = listed_slots(x, rb, margin, lo, hi, periodic, lstart, ljs)
     else:  # one particle, or a scene that asks for wall contacts only
         pi = np.empty(0, dtype=np.int64)
         pj = np.empty(0, dtype=np.int64)
         ps = np.empty((0, 3))
+        pk = np.empty(0, dtype=np.int64)
     npair = pi.shape[0]
     cg = np.empty(npair)
     cn = np.empty((npair, 3))
@@ -1068,7 +1098,7 @@ def _resolve_kernel(
     sg = np.empty((n, slots))
     sn = np.empty((n, slots, 3))
     sc = np.empty((n, slots, 3))
-    _narrow_phase(kind, h, x, Rm, rb, pi, pj, ps, contact_gap, manifold_tol, cg, cn, cc,
+    _narrow_phase(kind, h, x, Rm, rb, pi, pj, ps, pk, lwin, contact_gap, manifold_tol, cg, cn, cc,
                   dcode, Rp, cx, cy, lo, hi, periodic, margin, reach, use, sg, sn, sc)
     wi, wg, wn, wc = _gather_walls(use, sg, sn, sc)
     nwall = wi.shape[0]
@@ -1266,7 +1296,7 @@ def _resolve_kernel(
     stats[_S_OVA] = ova
     stats[_S_PROJ] += it_used
     stats[_S_DISP] = max(stats[_S_DISP], maxdisp)
-    return maxdisp, lstart, ljs, 0
+    return maxdisp, lstart, ljs, lwin, 0
 
 
 def resolve_collisions(bodies: Bodies, domain: Domain, params: CollisionParams, dt: float, pairs: bool = True,
@@ -1292,17 +1322,19 @@ def resolve_collisions(bodies: Bodies, domain: Domain, params: CollisionParams, 
     dcode, Rp, cx, cy, lo, hi, periodic = domain.arrays()
     if nlist is None:
         nlist = NeighbourList()
-    if nlist.xref.shape[0] != n:
+    if nlist.xref.shape[0] != n or getattr(nlist, "win", None) is None or nlist.win.shape != nlist.js.shape:
+        # (a list pickled before it kept the winners is rebuilt: the same pairs, so no result changes)
         nlist.xref = np.zeros((n, 3))
         nlist.meta[0] = 0.0
+        nlist.win = np.full(nlist.js.shape[0], -1, dtype=np.int8)
     passes = 0
     for p in range(4):
-        maxdisp, nlist.start, nlist.js, status = _resolve_kernel(
+        maxdisp, nlist.start, nlist.js, nlist.win, status = _resolve_kernel(
             bodies.kind, bodies.h, bodies.mass, bodies.inertia, bodies.x, bodies.v, bodies.q, bodies.wb, bodies.fixed,
             dcode, Rp, cx, cy, lo, hi, periodic,
             float(params.restitution), float(params.contact_gap), bool(params.speculative), float(params.overlap_tol),
             float(params.manifold_tol), float(params.skin), int(params.max_sweeps), int(params.max_projection_iters),
-            float(dt), p == 0, stats, bool(pairs), float(params.list_skin), nlist.start, nlist.js, nlist.xref,
+            float(dt), p == 0, stats, bool(pairs), float(params.list_skin), nlist.start, nlist.js, nlist.win, nlist.xref,
             nlist.meta,
         )
         if status:

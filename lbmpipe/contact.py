@@ -1178,7 +1178,8 @@ _PATCH_POINTS = 2 * DISC_SIDES + 4 * DISC_SIDES * DISC_SIDES // 4 + 8  # vertice
 # direction v, the witness midpoint (3 each), then the contact patch (``_manifold_point``): the
 # two features and the body-frame points (DISC_SIDES x 3 each), the two plane polygons
 # (DISC_SIDES x 2 each), -n, the plane basis t1, t2 (3 each), the patch point (2) and the patch
-# points (_PATCH_POINTS x 2)
+# points (_PATCH_POINTS x 2); last the exact cylinder path's candidate to try first and the one that
+# won (``body_contact_ws``)
 _WS_W = 0
 _WS_WA = _WS_W + 12
 _WS_WB = _WS_WA + 12
@@ -1197,7 +1198,9 @@ _WS_T1 = _WS_MNEG + 3
 _WS_T2 = _WS_T1 + 3
 _WS_UV = _WS_T2 + 3
 _WS_PTS = _WS_UV + 2
-WS_SIZE = _WS_PTS + 2 * _PATCH_POINTS
+_WS_HINT = _WS_PTS + 2 * _PATCH_POINTS
+_WS_WON = _WS_HINT + 1
+WS_SIZE = _WS_WON + 1
 
 
 @njit(cache=True)
@@ -1208,7 +1211,9 @@ def new_scratch():
     for the 18 arrays of a tuple that cost more than most cylinder contacts (0.4 us of 1 us);
     views are made only where a path needs them. A caller may pass a longer buffer and keep its
     own scratch after ``WS_SIZE``."""
-    return np.empty(WS_SIZE)
+    ws = np.empty(WS_SIZE)
+    ws[_WS_HINT] = -1.0
+    return ws
 
 
 @njit(cache=True, inline="always")
@@ -1238,9 +1243,14 @@ def _gjk_scratch(ws):
 def body_contact_ws(k1, h1, x1, R1, k2, h2, x2, R2, max_gap, manifold_tol, nrm, c, ws):
     """``body_contact`` with caller-provided scratch ``ws`` (``new_scratch()``). Callers that need
     only whether two bodies overlap ask ``bodies_overlap_ws``, which skips EPA and the contact
-    point."""
+    point. ``ws[_WS_HINT]`` is the exact cylinder path's candidate to try first (``_cylinder_gap``'s
+    ``first``; -1: none; used once), and ``ws[_WS_WON]`` the certified one (or -1) after a
+    cylinder pair: the narrow phase keeps it per pair from one step to the next. A wrong hint
+    costs one candidate and changes no result."""
     if k1 == CYLINDER and k2 == CYLINDER:
-        gap, pa, pb = _cylinder_gap(h1, x1, R1, h2, x2, R2)
+        gap, pa, pb, won = _cylinder_gap(h1, x1, R1, h2, x2, R2, int(ws[_WS_HINT]))
+        ws[_WS_HINT] = -1.0
+        ws[_WS_WON] = won
         if gap >= 0.0:
             for k in range(3):
                 nrm[k] = (pb[k] - pa[k]) / gap
@@ -1755,21 +1765,44 @@ def _cyl_frames(h1, x1, R1, h2, x2, R2):
 
 
 @njit(cache=True, inline="always")
-def _cylinder_gap(h1, x1, R1, h2, x2, R2):
-    """``cylinder_gap_exact`` on tuples: (gap or -1, witness point on 1, witness point on 2).
-    The contact of the narrow phase takes its result without the three arrays, whose views
-    cost as much as a rim-side contact's arithmetic."""
+def _cylinder_gap(h1, x1, R1, h2, x2, R2, first):
+    """``cylinder_gap_exact`` on tuples: (gap or -1, witness point on 1, witness point on 2, the
+    candidate that was certified or -1). The contact of the narrow phase takes its result without
+    the three arrays, whose views cost as much as a rim-side contact's arithmetic.
+
+    ``first`` (>= 0) is a candidate to try before the order of ``_try_order``: the one that won
+    for the same pair in the step before. Touching pairs keep their closest features for many
+    steps, so it is nearly always right, and then none of the candidates before it in the order is
+    evaluated. Like that order it sets the time, not the result: a certified candidate is the
+    gap, and no pair has been seen with two (``_try_order``)."""
     X1, E1, U1, V1, r1, l1, X2, E2, U2, V2, r2, l2 = _cyl_frames(h1, x1, R1, h2, x2, R2)
     tol = _EXACT_TOL * (math.sqrt(r1 * r1 + l1 * l1) + math.sqrt(r2 * r2 + l2 * l2))
+    none = (-1.0, (0.0, 0.0, 0.0), (0.0, 0.0, 0.0), -1)
+    if first >= 0:
+        ok, a, b = _cyl_candidate(first, X1, E1, U1, V1, r1, l1, X2, E2, U2, V2, r2, l2)
+        if ok:
+            g = _certified_gap(X1, E1, r1, l1, X2, E2, r2, l2, a[0], a[1], a[2], b[0], b[1], b[2], tol)
+            if g >= 0.0:
+                return g, a, b, first
+            if _inside_cyl(a, X2, E2, r2, l2, tol) or _inside_cyl(b, X1, E1, r1, l1, tol):
+                return none
     lean1 = _leans_more(X1, E1, X2, E2)
     for s in range(_N_CANDIDATES):
-        ok, a, b = _cyl_candidate(_try_order(s, lean1), X1, E1, U1, V1, r1, l1, X2, E2, U2, V2, r2, l2)
+        k = _try_order(s, lean1)
+        if k == first:
+            continue
+        ok, a, b = _cyl_candidate(k, X1, E1, U1, V1, r1, l1, X2, E2, U2, V2, r2, l2)
         if not ok:
             continue
         g = _certified_gap(X1, E1, r1, l1, X2, E2, r2, l2, a[0], a[1], a[2], b[0], b[1], b[2], tol)
         if g >= 0.0:
-            return g, a, b
-    return -1.0, (0.0, 0.0, 0.0), (0.0, 0.0, 0.0)
+            return g, a, b, k
+        # a point of one body inside the other by more than tol: the two overlap, so no candidate
+        # can be certified (its separation would be negative). The ~6-21 pairs a step of 244 dense
+        # cylinders that overlap within the projection's bound stop here, not after all eleven
+        if _inside_cyl(a, X2, E2, r2, l2, tol) or _inside_cyl(b, X1, E1, r1, l1, tol):
+            return none
+    return none
 
 
 @njit(cache=True)
@@ -1784,7 +1817,7 @@ def cylinder_gap_exact(h1, x1, R1, h2, x2, R2, nrm, pa, pb):
     gap, as exact as GJK's. Writes the unit normal from 1 to 2 into ``nrm`` and the witness points
     into ``pa``, ``pb``; returns -1 if no candidate is certified (overlapping or touching bodies,
     or a case the candidates miss), for the caller to use GJK/EPA."""
-    g, a, b = _cylinder_gap(h1, x1, R1, h2, x2, R2)
+    g, a, b, _won = _cylinder_gap(h1, x1, R1, h2, x2, R2, -1)
     if g >= 0.0:
         for kk in range(3):
             pa[kk] = a[kk]
@@ -2195,6 +2228,14 @@ def listed_pairs(x, rb, margin, lo, hi, periodic, start, js):
     contacts, and the Gauss-Seidel order of the impulses, are those of ``candidate_pairs``: a
     list kept over time steps looks at ~6 listed partners a body instead of the ~55 bodies the
     scan visits (244 dense 8 mm cylinders) and changes no result."""
+    pi, pj, ps, _slot = listed_slots(x, rb, margin, lo, hi, periodic, start, js)
+    return pi, pj, ps
+
+
+@njit(cache=True)
+def listed_slots(x, rb, margin, lo, hi, periodic, start, js):
+    """``listed_pairs`` and, for each pair, its slot t in the list (``js[t]`` is its j): where the
+    collision step keeps what it learns of a pair from one step to the next."""
     n = x.shape[0]
     rmax = 0.0
     for i in range(n):
@@ -2215,6 +2256,7 @@ def listed_pairs(x, rb, margin, lo, hi, periodic, start, js):
     pj = np.empty(cap, dtype=np.int64)
     ps = np.empty((cap, 3))
     key = np.empty(cap, dtype=np.int64)
+    slot = np.empty(cap, dtype=np.int64)
     cnt = 0
     for i in range(n):
         first = cnt
@@ -2248,26 +2290,47 @@ def listed_pairs(x, rb, margin, lo, hi, periodic, start, js):
                     pi[u] = i
                     pj[u] = pj[u - 1]
                     ps[u, 0], ps[u, 1], ps[u, 2] = ps[u - 1, 0], ps[u - 1, 1], ps[u - 1, 2]
+                    slot[u] = slot[u - 1]
                     u -= 1
                 key[u] = k
                 pi[u] = i
                 pj[u] = j
                 ps[u, 0], ps[u, 1], ps[u, 2] = s0, s1, s2
+                slot[u] = t
                 cnt += 1
-    return pi[:cnt], pj[:cnt], ps[:cnt]
+    return pi[:cnt], pj[:cnt], ps[:cnt], slot[:cnt]
 
 
 @njit(cache=True)
 def list_displacement(x, xref, lo, hi, periodic):
-    """Largest distance of a body from its position in ``xref`` (minimum image on periodic
-    axes: the drift wraps positions into the period)."""
+    """How far the bodies have moved relative to each other since ``xref``: the largest distance
+    of a body's displacement (minimum image on periodic axes: the drift wraps positions into the
+    period) from a shift c common to all, or from none if that is less. A pair's distance changes
+    by at most |d_i - d_j| <= |d_i - c| + |d_j - c|, so a list built for a margin M holds every
+    pair within ``margin`` while ``margin + 2 * list_displacement <= M``. The common shift is the
+    middle of the displacements' range on each axis: in the pipe the suspension is carried along z
+    at about 0.1 lattice units a step, and measured from their positions at the build the bodies
+    left a list of 1 unit's skin every ~6 steps (244 dense 8 mm cylinders)."""
     L0, L1, L2 = hi[0] - lo[0], hi[1] - lo[1], hi[2] - lo[2]
+    n = x.shape[0]
+    d = np.empty((n, 3))
     dmax = 0.0
-    for i in range(x.shape[0]):
-        _s0, _s1, _s2, dd = _image_offset(x[i, 0] - xref[i, 0], x[i, 1] - xref[i, 1], x[i, 2] - xref[i, 2],
-                                          L0, L1, L2, periodic[0], periodic[1], periodic[2])
+    for i in range(n):
+        s0, s1, s2, dd = _image_offset(x[i, 0] - xref[i, 0], x[i, 1] - xref[i, 1], x[i, 2] - xref[i, 2],
+                                       L0, L1, L2, periodic[0], periodic[1], periodic[2])
+        d[i, 0] = x[i, 0] - xref[i, 0] + s0
+        d[i, 1] = x[i, 1] - xref[i, 1] + s1
+        d[i, 2] = x[i, 2] - xref[i, 2] + s2
         dmax = max(dmax, dd)
-    return math.sqrt(dmax)
+    if n == 0:
+        return 0.0
+    c = np.empty(3)
+    for a in range(3):
+        c[a] = 0.5 * (d[:, a].min() + d[:, a].max())
+    cmax = 0.0
+    for i in range(n):
+        cmax = max(cmax, (d[i, 0] - c[0]) ** 2 + (d[i, 1] - c[1]) ** 2 + (d[i, 2] - c[2]) ** 2)
+    return math.sqrt(min(dmax, cmax))
 
 
 @njit(cache=True)

@@ -461,8 +461,17 @@ def test_narrow_phase_gives_exact_touching_contacts_and_lower_bounds_beyond_the_
     cg, cn, cc = np.empty(npair), np.empty((npair, 3)), np.empty((npair, 3))
     use, sg = np.zeros((n, 1), dtype=np.bool_), np.empty((n, 1))
     sn, sc = np.empty((n, 1, 3)), np.empty((n, 1, 3))
-    C._narrow_phase(b.kind, b.h, b.x, Rm, rb, pi, pj, ps, gap_c, 0.1, cg, cn, cc, dcode, Rp, cx, cy, lo, hi, periodic,
-                    margin, reach, use, sg, sn, sc)
+    # each pair's exact cylinder candidate of the step before goes first (the list slot's hint):
+    # a second pass with the hints the first one learnt must give the same bits
+    pk, lwin = np.arange(npair), np.full(npair, -1, dtype=np.int8)
+    C._narrow_phase(b.kind, b.h, b.x, Rm, rb, pi, pj, ps, pk, lwin, gap_c, 0.1, cg, cn, cc, dcode, Rp, cx, cy, lo, hi,
+                    periodic, margin, reach, use, sg, sn, sc)
+    assert (lwin >= 0).sum() > 10
+    again = np.empty(npair), np.empty((npair, 3)), np.empty((npair, 3))
+    C._narrow_phase(b.kind, b.h, b.x, Rm, rb, pi, pj, ps, pk, lwin, gap_c, 0.1, *again, dcode, Rp, cx, cy, lo, hi,
+                    periodic, margin, reach, use.copy(), sg.copy(), sn.copy(), sc.copy())
+    for a, c in zip((cg, cn, cc), again):
+        np.testing.assert_array_equal(a, c)
     kinds_touching = set()
     for m in range(npair):
         i, j = pi[m], pj[m]

@@ -218,9 +218,10 @@ def test_exact_cylinder_gap_equals_gjk_for_random_separated_pairs_of_the_paper_s
 
 def test_exact_cylinder_gap_is_certified_by_one_feature_pair_only_so_the_try_order_changes_no_bit():
     # _cylinder_gap tries the rim-side searches in an order set by the axes' lean towards the
-    # centre line; the result is the fixed order's as long as no two candidates are certified
+    # centre line, after the candidate that won the step before if it is given one; the result
+    # is the fixed order's as long as no two candidates are certified
     from lbmpipe.contact import (_EXACT_TOL, _N_CANDIDATES, _certified_gap, _cyl_candidate, _cyl_frames,
-                                 cylinder_gap_exact)
+                                 _cylinder_gap, cylinder_gap_exact)
 
     rng = np.random.default_rng(11)
     nrm, pa, pb = np.empty(3), np.empty(3), np.empty(3)
@@ -247,11 +248,14 @@ def test_exact_cylinder_gap_is_certified_by_one_feature_pair_only_so_the_try_ord
             g = cylinder_gap_exact(h1, np.zeros(3), R1, h2, x2, R2, nrm, pa, pb)
             if not found:
                 assert g == -1.0
+                assert all(_cylinder_gap(h1, np.zeros(3), R1, h2, x2, R2, f)[3] == -1 for f in range(_N_CANDIDATES))
                 continue
             k, g0, a, b = found[0]
             checked += 1
             reordered += k in (4, 5)
             assert g == g0 and tuple(pa) == a and tuple(pb) == b  # bit for bit
+            for first in range(-1, _N_CANDIDATES):
+                assert _cylinder_gap(h1, np.zeros(3), R1, h2, x2, R2, first) == (g0, a, b, k)
     assert checked > 400 and reordered > 80
 
 
@@ -415,7 +419,7 @@ def test_cell_list_finds_exactly_the_pairs_of_an_all_pairs_search_with_periodic_
         np.testing.assert_allclose(found[k], expected[k])
 
 
-def test_a_verlet_list_gives_the_cell_scans_pairs_in_its_order_while_bodies_stay_within_half_its_skin():
+def test_a_verlet_list_gives_the_cell_scans_pairs_while_bodies_stay_within_half_its_skin_of_a_common_drift():
     # the collision step keeps a list over time steps and must see the same pairs, shifts and
     # order (its Gauss-Seidel order) as a fresh cell scan: boxes with periodic axes of 1, 2 and
     # more cells, bodies moved by up to half the list's extra margin and wrapped into the period
@@ -433,11 +437,23 @@ def test_a_verlet_list_gives_the_cell_scans_pairs_in_its_order_while_bodies_stay
         periodic &= (hi - lo) >= 2.0 * (2.0 * rb.max() + big)
         start, js = neighbour_list(x, rb, big, lo, hi, periodic)
         d = 0.5 * (big - margin)
+        # half the trials also carry all bodies along by a common shift longer than the skin, as
+        # the flow carries a suspension: the list holds on relative displacements. Steps within
+        # d / sqrt(3) keep every body within d of the middle of their range on each axis.
+        # (The shift stays within a quarter period: with the steps that keeps every
+        # displacement's minimum image.)
+        shifted = trial % 2 == 1
         step = rng.standard_normal((n, 3))
-        step *= (d * rng.random(n) / np.linalg.norm(step, axis=1))[:, None]
-        x1 = x + step
+        step *= (d * (3.0 ** -0.5 if shifted else 1.0) * rng.random(n) / np.linalg.norm(step, axis=1))[:, None]
+        drift = rng.uniform(-1.0, 1.0, 3) * np.minimum(3.0 * (big - margin), 0.25 * (hi - lo)) * shifted
+        drift = np.where(periodic, drift, 0.0)
+        x1 = x + step + drift
         x1 = np.where(periodic, lo + np.mod(x1 - lo, hi - lo), x1)
-        assert list_displacement(x1, x, lo, hi, periodic) <= d * (1.0 + 1e-12)
+        moved = list_displacement(x1, x, lo, hi, periodic)
+        assert moved <= d * (1.0 + 1e-9)
+        # what the list relies on: no two bodies have moved apart by more than twice that
+        rel = np.linalg.norm(step[:, None, :] - step[None, :, :], axis=-1)
+        assert rel.max() <= 2.0 * moved * (1.0 + 1e-9)
         expected = candidate_pairs(x1, rb, margin, lo, hi, periodic)
         got = listed_pairs(x1, rb, margin, lo, hi, periodic, start, js)
         for a, b in zip(got, expected):
