@@ -676,7 +676,6 @@ def _narrow_chunk(ch, ncp, kind, h, x, Rm, rb, pi, pj, ps, pk, lwin, max_gap, ma
                     continue
             # the pair's closest features of the step before, in its list slot, go first
             ws[_WS_HINT] = lwin[pk[m]]
-            ws[_WS_WON] = -1.0  # stays for a pair that is not two cylinders
             cg[m] = body_contact_ws(kind[i], h[i], x[i], Rm[i], kind[j], h[j], x2, Rm[j], max_gap, manifold_tol, nrm,
                                     c, ws)
             lwin[pk[m]] = int(ws[_WS_WON])
@@ -1014,7 +1013,7 @@ def _carry_hints(ostart, ojs, owin, nstart, njs):
     list where it held the pair (-1 elsewhere): a rebuild would otherwise make every pair search
     its candidates from the start for a step."""
     win = np.full(njs.shape[0], -1, dtype=np.int8)
-    if ostart.shape[0] != nstart.shape[0] or owin.shape[0] != ojs.shape[0]:
+    if ostart.shape[0] != nstart.shape[0]:  # the first list, or a new number of bodies
         return win
     for i in range(nstart.shape[0] - 1):
         for t in range(nstart[i], nstart[i + 1]):
@@ -1322,11 +1321,9 @@ def resolve_collisions(bodies: Bodies, domain: Domain, params: CollisionParams, 
     dcode, Rp, cx, cy, lo, hi, periodic = domain.arrays()
     if nlist is None:
         nlist = NeighbourList()
-    if nlist.xref.shape[0] != n or getattr(nlist, "win", None) is None or nlist.win.shape != nlist.js.shape:
-        # (a list pickled before it kept the winners is rebuilt: the same pairs, so no result changes)
+    if nlist.xref.shape[0] != n:
         nlist.xref = np.zeros((n, 3))
         nlist.meta[0] = 0.0
-        nlist.win = np.full(nlist.js.shape[0], -1, dtype=np.int8)
     passes = 0
     for p in range(4):
         maxdisp, nlist.start, nlist.js, nlist.win, status = _resolve_kernel(
