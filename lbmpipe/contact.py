@@ -2252,6 +2252,16 @@ def listed_slots(x, rb, margin, lo, hi, periodic, start, js):
         cell[i, 1] = (c // nc[2]) % nc[1]
         cell[i, 0] = c // (nc[1] * nc[2])
     noff, offs = _stencil(nc, periodic)
+    # the stencil position of a cell difference d on each axis, looked up (-1: not visited): the
+    # search with a modulo per offset and listed pair took 1.2 % of the collision step
+    nmax = max(nc[0], max(nc[1], nc[2]))
+    pos = np.full((3, 2 * nmax - 1), -1, dtype=np.int64)
+    for a in range(3):
+        for d in range(1 - nc[a], nc[a]):
+            for u in range(noff[a]):
+                if (d - offs[a, u]) % nc[a] == 0 if periodic[a] else d == offs[a, u]:
+                    pos[a, d + nmax - 1] = u
+                    break
     L = np.empty(3)
     for a in range(3):
         L[a] = hi[a] - lo[a]
@@ -2270,12 +2280,7 @@ def listed_slots(x, rb, margin, lo, hi, periodic, start, js):
             # not look there
             st = 0
             for a in range(3):
-                d = cell[j, a] - cell[i, a]
-                o = -1
-                for u in range(noff[a]):
-                    if (d - offs[a, u]) % nc[a] == 0 if periodic[a] else d == offs[a, u]:
-                        o = u
-                        break
+                o = pos[a, cell[j, a] - cell[i, a] + nmax - 1]
                 if o < 0:
                     st = -1
                     break
