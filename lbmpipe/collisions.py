@@ -782,9 +782,7 @@ def _test_scratch():
     """Scratch of ``_activate_one``: the contact scratch (``new_scratch``), then its own arrays
     (normal, point, the two bodies' trial centres and rotations), in one buffer: each array passed
     to a function costs a reference count."""
-    scr = np.empty(WS_SIZE + 30)
-    scr[_WS_HINT] = -1.0
-    return scr
+    return new_scratch(30)
 
 
 @njit(cache=True, inline="always")

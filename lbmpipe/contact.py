@@ -1204,14 +1204,14 @@ WS_SIZE = _WS_WON + 1
 
 
 @njit(cache=True)
-def new_scratch():
+def new_scratch(extra=0):
     """Scratch memory of ``body_contact_ws`` and ``bodies_overlap_ws`` (layout: ``_WS_*``). One
     per thread: the narrow phase runs ~10^3 times per step and must not allocate. One buffer,
     not a tuple of arrays: a function call takes a reference on every array it is passed, and
     for the 18 arrays of a tuple that cost more than most cylinder contacts (0.4 us of 1 us);
-    views are made only where a path needs them. A caller may pass a longer buffer and keep its
-    own scratch after ``WS_SIZE``."""
-    ws = np.empty(WS_SIZE)
+    views are made only where a path needs them. ``extra``: more room after ``WS_SIZE``, for a
+    caller's own scratch in the same buffer."""
+    ws = np.empty(WS_SIZE + extra)
     ws[_WS_HINT] = -1.0
     return ws
 
@@ -2253,7 +2253,7 @@ def listed_slots(x, rb, margin, lo, hi, periodic, start, js):
         cell[i, 0] = c // (nc[1] * nc[2])
     noff, offs = _stencil(nc, periodic)
     # the stencil position of a cell difference d on each axis, looked up (-1: not visited): the
-    # search with a modulo per offset and listed pair took 1.2 % of the collision step
+    # collision step took 1.01-1.02 times as long with a search by modulo per listed pair
     nmax = max(nc[0], max(nc[1], nc[2]))
     pos = np.full((3, 2 * nmax - 1), -1, dtype=np.int64)
     for a in range(3):
