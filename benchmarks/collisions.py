@@ -18,7 +18,18 @@ the median per step over the windows of
     correction, motion and remap),
   * collisions: ``CollisionEffect`` (broad phase, narrow phase, impulses, overlap projection),
   * ratio: collisions / fluid sweep, the median of the per-window ratios (both measured in the
-    same window, so load from other processes cancels to first order).
+    same window, so load from other processes cancels to first order),
+  * collisions / step: the collision step's share of the whole time step,
+  * us / contact: the collision step per touching contact (pairs and walls), a figure that depends
+    on the core alone and not on the memory system.
+
+The ratio to the sweep depends on the host's memory system as much as on the collision code: the
+sweep is bound by the bandwidth its two population arrays are read and written at, the collision
+step by the core. The first line names the CPU, its last-level cache and the size of the
+population arrays: where they fit in that cache (2026-12-04: a Xeon with 480 MiB of L3 for 66 MB
+of populations) the sweep runs at cache bandwidth, 2.1-2.2 ms on 1 thread against 4.9-5.8 ms on the
+host of the earlier runs (an AMD EPYC), and a collision step of about the same time (1.2 ms here,
+1.5-1.8 ms there) is about twice the share (0.55-0.60 against 0.30-0.33).
 
 The issue's target: collisions at most 25 % of the fluid sweep for the 50 % cylinders.
 Each thread count runs in its own process (``NUMBA_NUM_THREADS``), since the sweep fixes its
@@ -90,14 +101,17 @@ def measure(case: str, steps: int, repeats: int, warmup: int) -> dict:
             "collisions": per[coll.name],
         }
         w["ratio"] = w["collisions"] / w["sweep"]
+        w["share_of_step"] = w["collisions"] / wall
         for k in ("impulses", "pair_contacts", "wall_contacts", "unresolved"):
             w[k] = (coll.totals[k] - before[k]) / steps
+        w["us_per_contact"] = 1e6 * w["collisions"] / max(w["pair_contacts"] + w["wall_contacts"], 1.0)
         windows.append(w)
     med = {k: statistics.median(w[k] for w in windows) for k in windows[0]}
     bodies = sim.particles.bodies
     return {
         "case": case, "threads": numba.get_num_threads(), "particles": int(bodies.n),
         "concentration": sim.packing.get("concentration_achieved"), "setup_seconds": setup,
+        "population_bytes": int(sim.f.nbytes + sim.f_next.nbytes),
         "steps": steps, "repeats": repeats, "warmup": warmup, "median": med, "windows": windows,
         "max_overlap_after_lu": coll.totals["max_overlap_after_lu"],
         "max_overlap_before_lu": coll.totals["max_overlap_before_lu"],
@@ -129,15 +143,24 @@ def main(argv=None) -> int:
                str(args.repeats), "--warmup", str(args.warmup), "--cases", *args.cases]
         out = subprocess.run(cmd, env=env, check=True, stdout=subprocess.PIPE, text=True).stdout
         rows += json.loads(next(line for line in out.splitlines() if line.startswith("JSON "))[5:])
+    sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+    from _common import machine_info
+
+    mi = machine_info()
+    llc = mi["llc_bytes"]
+    pop = rows[0]["population_bytes"] if rows else 0
+    fits = "unknown" if not llc else ("yes" if pop <= llc else "no")
+    print(f"{mi['cpu_model']}; last-level cache {llc / 2**20 if llc else float('nan'):.0f} MiB; population arrays "
+          f"{pop / 1e6:.0f} MB (fit in that cache: {fits})")
     print(f"Paper pipe 50 x 50 x 100 (dx 1 mm), Re 9.4 flow-rate, D3Q15 BGK; median of {args.repeats} windows of "
           f"{args.steps} steps after {args.warmup}")
     print(f"{'case':<11} {'N':>4} {'thr':>3} {'sweep ms':>9} {'particles ms':>13} {'collisions ms':>14} {'coll/sweep':>11} "
-          f"{'impulses':>9} {'pairs':>6} {'walls':>6} {'max ov':>7}")
+          f"{'coll/step':>10} {'us/contact':>11} {'impulses':>9} {'pairs':>6} {'walls':>6} {'max ov':>7}")
     for r in rows:
         m = r["median"]
         print(f"{r['case']:<11} {r['particles']:>4} {r['threads']:>3} {1e3 * m['sweep']:>9.3f} {1e3 * m['particles']:>13.3f} "
-              f"{1e3 * m['collisions']:>14.3f} {m['ratio']:>11.3f} {m['impulses']:>9.1f} {m['pair_contacts']:>6.1f} "
-              f"{m['wall_contacts']:>6.1f} {r['max_overlap_after_lu']:>7.4f}")
+              f"{1e3 * m['collisions']:>14.3f} {m['ratio']:>11.3f} {m['share_of_step']:>10.3f} {m['us_per_contact']:>11.2f} "
+              f"{m['impulses']:>9.1f} {m['pair_contacts']:>6.1f} {m['wall_contacts']:>6.1f} {r['max_overlap_after_lu']:>7.4f}")
     if args.json:
         with open(args.json, "w") as fh:
             json.dump(rows, fh, indent=2)
