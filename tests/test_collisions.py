@@ -4,6 +4,7 @@ hand-worked impacts, overlap control and a long dry run in the pipe."""
 import copy
 import math
 import time
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -255,6 +256,45 @@ def test_a_cylinder_wedged_across_the_pipe_is_turned_free_where_translation_cann
     assert abs(np.linalg.norm(c.q[0]) - 1.0) < 1e-12
     np.testing.assert_array_equal(c.v, 0.0)
     np.testing.assert_array_equal(c.wb, 0.0)
+
+
+def _jam_of_16mm_cylinders():
+    # 31 cylinders of 16 x 16 lattice spacings at 50 % in the paper's pipe (radius 25, period 100),
+    # the bodies of step 287 of cyl16x16_c50_re9.4 just before its collision step
+    d = np.load(Path(__file__).parent / "data" / "jam_cyl16x16_c50.npz")
+    b = Bodies(**{k: d[k] for k in ("kind", "h", "mass", "inertia", "x", "v", "q", "wb", "fixed")})
+    return b, Domain.pipe(float(d["pipe_radius"]), 100.0)
+
+
+def test_a_jam_that_translations_free_only_by_pushing_back_and_forth_is_turned_free_after_translation_iters():
+    b0, dom = _jam_of_16mm_cylinders()
+    com0 = (b0.mass[:, None] * b0.x).sum(0)
+    # translations alone: the bodies are pushed back and forth for ~200 sweeps, their shifts add up
+    # to several lattice spacings for a net displacement of a few hundredths
+    slow = b0.copy()
+    st_slow = resolve_collisions(slow, dom, CollisionParams(contact_gap=1.0, translation_iters=200), 1.0)
+    net_slow = np.linalg.norm(slow.x - b0.x, axis=1).max()
+    assert st_slow["projection_iters"] > 100 and st_slow["max_displacement"] > 1.0 and net_slow < 0.1
+    # the default hands the jam to the rotating projection after 20 sweeps: a few more sweeps,
+    # small turns, the same bound
+    fast = b0.copy()
+    prm = CollisionParams(contact_gap=1.0)
+    st = resolve_collisions(fast, dom, prm, 1.0)
+    assert st["rotation_projections"] >= 1
+    assert st["projection_iters"] <= st["passes"] * (prm.translation_iters + 20)
+    assert st["max_overlap_after"] <= prm.overlap_tol
+    turn = 2.0 * np.arccos(np.clip(np.abs(np.sum(fast.q * b0.q, axis=1)), 0.0, 1.0)).max()
+    assert turn < 0.01  # radians
+    np.testing.assert_allclose(np.linalg.norm(fast.q, axis=1), 1.0, atol=1e-12)
+    # pairs keep the centre of mass; the pipe wall pushes radially, so its axial component stays
+    assert abs((fast.mass * fast.x[:, 2]).sum() - com0[2]) <= 1e-12 * abs(com0[2])
+    # the impulses are the same in both: only the projection differs
+    assert st["impulses"] == st_slow["impulses"]
+
+
+def test_translation_iters_below_one_is_refused():
+    with pytest.raises(ValueError, match="translation_iters"):
+        CollisionParams(translation_iters=0)
 
 
 def test_the_rotating_projection_is_not_used_where_translation_separates_the_bodies():
