@@ -5,7 +5,9 @@ flow-rate driving (Q = 1.577e-4 m^3/s, tau 1.78), D3Q15 BGK, half-way bounce-bac
 start, with a packed suspension (``particles.packed``, packed at start-up by ``lbmpipe.packing``):
 
   * ``cyl8x8_c50``: cylinders 8 x 8 mm at 50 % (244 particles), the issue's target case;
-  * ``cube8_c30``: cubes of 8 mm at 30 % (115 particles).
+  * ``cube8_c30``: cubes of 8 mm at 30 % (115 particles);
+  * ``cyl16x16_c50`` (only with ``--cases``): cylinders 16 x 16 mm at 50 % (31 particles), whose
+    jams across the pipe go to the rotating overlap projection (``rotation_projections``).
 
 Dense packings keep nearly every particle in contact, so every step has many pair and wall
 contacts and impulses. The simulation is assembled by ``lbmpipe.solver.simulation_from_scene``
@@ -21,7 +23,8 @@ the median per step over the windows of
     same window, so load from other processes cancels to first order),
   * collisions / step: the collision step's share of the whole time step,
   * us / contact: the collision step per touching contact (pairs and walls), a figure that depends
-    on the core alone and not on the memory system.
+    on the core alone and not on the memory system,
+  * jams: the share of steps whose overlap projection had to turn bodies (``rotation_projections``).
 
 The ratio to the sweep depends on the host's memory system as much as on the collision code: the
 sweep is bound by the bandwidth its two population arrays are read and written at, the collision
@@ -36,7 +39,7 @@ Each thread count runs in its own process (``NUMBA_NUM_THREADS``), since the swe
 chunking when the simulation is built.
 
 Run: ``python benchmarks/collisions.py [--threads 1 2] [--steps 100] [--repeats 5] [--warmup 100]
-[--cases cyl8x8_c50 cube8_c30] [--json FILE]``.
+[--cases cyl8x8_c50 cube8_c30 cyl16x16_c50] [--json FILE]``.
 """
 
 from __future__ import annotations
@@ -52,7 +55,10 @@ import time
 CASES = {
     "cyl8x8_c50": {"shape": "cylinder", "diameter_mm": 8.0, "length_mm": 8.0, "concentration": 0.5, "seed": 0},
     "cube8_c30": {"shape": "cube", "edge_mm": 8.0, "concentration": 0.3, "seed": 0},
+    # not run by default: 31 large cylinders whose jams exercise the rotating overlap projection
+    "cyl16x16_c50": {"shape": "cylinder", "diameter_mm": 16.0, "length_mm": 16.0, "concentration": 0.5, "seed": 1},
 }
+DEFAULT_CASES = ["cyl8x8_c50", "cube8_c30"]
 
 
 def scene_dict(case: str) -> dict:
@@ -102,7 +108,7 @@ def measure(case: str, steps: int, repeats: int, warmup: int) -> dict:
         }
         w["ratio"] = w["collisions"] / w["sweep"]
         w["share_of_step"] = w["collisions"] / wall
-        for k in ("impulses", "pair_contacts", "wall_contacts", "unresolved"):
+        for k in ("impulses", "pair_contacts", "wall_contacts", "unresolved", "rotation_projections"):
             w[k] = (coll.totals[k] - before[k]) / steps
         w["us_per_contact"] = 1e6 * w["collisions"] / max(w["pair_contacts"] + w["wall_contacts"], 1.0)
         windows.append(w)
@@ -130,7 +136,7 @@ def main(argv=None) -> int:
     ap.add_argument("--steps", type=int, default=100)
     ap.add_argument("--repeats", type=int, default=5)
     ap.add_argument("--warmup", type=int, default=100)
-    ap.add_argument("--cases", nargs="+", default=list(CASES), choices=list(CASES))
+    ap.add_argument("--cases", nargs="+", default=DEFAULT_CASES, choices=list(CASES))
     ap.add_argument("--json", type=str, default=None)
     ap.add_argument("--worker", action="store_true", help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
@@ -155,12 +161,13 @@ def main(argv=None) -> int:
     print(f"Paper pipe 50 x 50 x 100 (dx 1 mm), Re 9.4 flow-rate, D3Q15 BGK; median of {args.repeats} windows of "
           f"{args.steps} steps after {args.warmup}")
     print(f"{'case':<11} {'N':>4} {'thr':>3} {'sweep ms':>9} {'particles ms':>13} {'collisions ms':>14} {'coll/sweep':>11} "
-          f"{'coll/step':>10} {'us/contact':>11} {'impulses':>9} {'pairs':>6} {'walls':>6} {'max ov':>7}")
+          f"{'coll/step':>10} {'us/contact':>11} {'impulses':>9} {'pairs':>6} {'walls':>6} {'jams':>5} {'max ov':>7}")
     for r in rows:
         m = r["median"]
         print(f"{r['case']:<11} {r['particles']:>4} {r['threads']:>3} {1e3 * m['sweep']:>9.3f} {1e3 * m['particles']:>13.3f} "
               f"{1e3 * m['collisions']:>14.3f} {m['ratio']:>11.3f} {m['share_of_step']:>10.3f} {m['us_per_contact']:>11.2f} "
-              f"{m['impulses']:>9.1f} {m['pair_contacts']:>6.1f} {m['wall_contacts']:>6.1f} {r['max_overlap_after_lu']:>7.4f}")
+              f"{m['impulses']:>9.1f} {m['pair_contacts']:>6.1f} {m['wall_contacts']:>6.1f} {m['rotation_projections']:>5.2f} "
+              f"{r['max_overlap_after_lu']:>7.4f}")
     if args.json:
         with open(args.json, "w") as fh:
             json.dump(rows, fh, indent=2)
