@@ -32,7 +32,7 @@ step by the core. The first line names the CPU, its last-level cache and the siz
 population arrays: where they fit in that cache (2026-12-04: a Xeon with 480 MiB of L3 for 66 MB
 of populations) the sweep runs at cache bandwidth, 2.1-2.2 ms on 1 thread against 4.9-5.8 ms on the
 host of the earlier runs (an AMD EPYC), and a collision step of about the same time (1.2 ms here,
-1.5-1.8 ms there) is about twice the share (0.55-0.60 against 0.30-0.33).
+1.5-1.8 ms there) is about twice the share (0.54-0.60 against 0.30-0.33).
 
 The issue's target: collisions at most 25 % of the fluid sweep for the 50 % cylinders.
 Each thread count runs in its own process (``NUMBA_NUM_THREADS``), since the sweep fixes its
