@@ -30,7 +30,7 @@ The ratio to the sweep depends on the host's memory system as much as on the col
 sweep is bound by the bandwidth its two population arrays are read and written at, the collision
 step by the core. The first line names the CPU, its last-level cache and the size of the
 population arrays: where they fit in that cache (2026-12-04: a Xeon with 480 MiB of L3 for 66 MB
-of populations) the sweep runs at cache bandwidth, 2.1-2.2 ms on 1 thread against 4.9-5.8 ms on the
+of populations) the sweep runs at cache bandwidth, 2.1-2.3 ms on 1 thread against 4.9-5.8 ms on the
 host of the earlier runs (an AMD EPYC), and a collision step of about the same time (1.2 ms here,
 1.5-1.8 ms there) is about twice the share (0.54-0.60 against 0.30-0.33).
 

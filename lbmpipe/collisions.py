@@ -1284,8 +1284,8 @@ def _resolve_kernel(
     d2 = np.zeros(npair)
     dw = np.zeros(nwall)
     it_used = _project(False, min(max_trans, max_proj), overlap_tol, kind, h, x, q, Rm, im, iinv, rb, pi, pj, ps, cg,
-                       cn, cc, wi, wg, wn, wc, d1, d2, dw, disp, dcode, Rp, cx, cy, lo, hi, margin, manifold_tol, ws, nrm,
-                       c, x2)
+                       cn, cc, wi, wg, wn, wc, d1, d2, dw, disp, dcode, Rp, cx, cy, lo, hi, margin, manifold_tol, ws,
+                       nrm, c, x2)
     ova = _final_overlap(kind, h, x, Rm, pi, pj, ps, cg, wi, wg, wn, d1, d2, dw, disp, dcode, Rp, cx, cy, lo, hi,
                          margin, manifold_tol, ws, nrm, c, x2)
     if ova > overlap_tol:
@@ -1341,8 +1341,8 @@ def resolve_collisions(bodies: Bodies, domain: Domain, params: CollisionParams, 
             dcode, Rp, cx, cy, lo, hi, periodic,
             float(params.restitution), float(params.contact_gap), bool(params.speculative), float(params.overlap_tol),
             float(params.manifold_tol), float(params.skin), int(params.max_sweeps), int(params.max_projection_iters),
-            int(params.translation_iters), float(dt), p == 0, stats, bool(pairs), float(params.list_skin), nlist.start, nlist.js, nlist.win, nlist.xref,
-            nlist.meta,
+            int(params.translation_iters), float(dt), p == 0, stats, bool(pairs), float(params.list_skin),
+            nlist.start, nlist.js, nlist.win, nlist.xref, nlist.meta,
         )
         if status:
             _refuse(status, bodies, params, lo, hi, step)
