@@ -7,8 +7,8 @@ from snakemake.utils import min_version, validate
 
 from pathlib import Path
 
-from lbmpipe.cases import case_scene, estimate_minutes, packing_id, write_case_scene
-from lbmpipe.statistics import write_case_outputs
+from lbmpipe.reproduction.cases import case_scene, estimate_minutes, packing_id, write_case_scene
+from lbmpipe.reproduction.statistics import write_case_outputs
 
 min_version("8.0")
 

@@ -384,7 +384,7 @@ class SweepOnly:
     bounds: list = field(init=False)
 
     def __post_init__(self):
-        from lbmpipe import boundaries as bnd
+        from lbmpipe.fluid import boundaries as bnd
         from lbmpipe.effects import StreamCollide
 
         self._sweep = next(e for e in self.sim.effects if isinstance(e, StreamCollide))

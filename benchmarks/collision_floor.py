@@ -73,7 +73,7 @@ sys.path.insert(0, str(ROOT / "benchmarks"))
 from _common import SweepOnly, machine_info, set_threads  # noqa: E402
 from collisions import scene_dict  # noqa: E402
 
-from lbmpipe.collisions import (  # noqa: E402
+from lbmpipe.particles.collisions import (  # noqa: E402
     _NG,
     CollisionEffect,
     NeighbourList,
@@ -83,7 +83,7 @@ from lbmpipe.collisions import (  # noqa: E402
     lab_omegas,
     resolve_collisions,
 )  # noqa: E402
-from lbmpipe.contact import (  # noqa: E402
+from lbmpipe.particles.contact import (  # noqa: E402
     _cylinder_gap,
     _gjk_from,
     _gjk_scratch,
@@ -94,7 +94,7 @@ from lbmpipe.contact import (  # noqa: E402
     new_scratch,
     pipe_wall_contact,
 )
-from lbmpipe.rigid import quat_to_matrices  # noqa: E402
+from lbmpipe.particles.rigid import quat_to_matrices  # noqa: E402
 
 WARM_REL_TOL = 1e-7
 

@@ -49,7 +49,7 @@ CASE = "cyl8x8_c50"
 
 def build_states(at: list[int]) -> dict:
     """Run the case with the fluid and keep the bodies at the steps ``at``."""
-    from lbmpipe.collisions import CollisionEffect
+    from lbmpipe.particles.collisions import CollisionEffect
     from lbmpipe.scene import Scene
     from lbmpipe.solver import simulation_from_scene
     from lbmpipe.units import derive
@@ -65,13 +65,13 @@ def build_states(at: list[int]) -> dict:
 
 
 def import_other(root: Path):
-    """``lbmpipe.collisions`` of the checkout at ``root``, imported as ``lbmpipe_against`` from a
+    """``lbmpipe.particles.collisions`` of the checkout at ``root``, imported as ``lbmpipe_against`` from a
     renamed copy in the temporary folder. The copy's folder is named after a hash of the sources
     and kept: numba's cache knows a function by its file's path and time, so a second run against
     the same sources loads the compiled code instead of compiling it again (minutes)."""
     src = root / "lbmpipe"
     if not (src / "collisions.py").is_file():
-        raise SystemExit(f"--against {root}: no lbmpipe/collisions.py there (give the root of a checkout)")
+        raise SystemExit(f"--against {root}: no lbmpipe/particles/collisions.py there (give the root of a checkout)")
     digest = hashlib.sha256()
     for f in sorted(src.glob("*.py")):
         digest.update(f.name.encode())
@@ -143,7 +143,7 @@ def main(argv=None) -> int:
         ap.error("--at, --rounds and --reps must be positive")
     set_threads(args.threads)
 
-    import lbmpipe.collisions as here
+    import lbmpipe.particles.collisions as here
 
     if args.states is not None and args.states.is_file():
         with open(args.states, "rb") as fh:

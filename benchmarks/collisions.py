@@ -2,7 +2,7 @@
 
 The paper's pipe (50 mm x 100 mm, dx = 1 mm: 50 x 50 x 100 nodes, periodic in z), Re 9.4
 flow-rate driving (Q = 1.577e-4 m^3/s, tau 1.78), D3Q15 BGK, half-way bounce-back, parabolic
-start, with a packed suspension (``particles.packed``, packed at start-up by ``lbmpipe.packing``):
+start, with a packed suspension (``particles.packed``, packed at start-up by ``lbmpipe.particles.packing``):
 
   * ``cyl8x8_c50``: cylinders 8 x 8 mm at 50 % (244 particles), the issue's target case;
   * ``cube8_c30``: cubes of 8 mm at 30 % (115 particles);
@@ -78,7 +78,7 @@ def scene_dict(case: str) -> dict:
 def measure(case: str, steps: int, repeats: int, warmup: int) -> dict:
     import numba
 
-    from lbmpipe.collisions import CollisionEffect
+    from lbmpipe.particles.collisions import CollisionEffect
     from lbmpipe.effects import StreamCollide
     from lbmpipe.scene import Scene
     from lbmpipe.solver import simulation_from_scene

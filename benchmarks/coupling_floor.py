@@ -1,6 +1,6 @@
 """The least the Ladd coupling's link passes can cost, against the fluid sweep: a floor, not physics.
 
-Per step the coupling (``lbmpipe.coupling``, Eqs. (8)-(12)) reads the post-collision population
+Per step the coupling (``lbmpipe.particles.coupling``, Eqs. (8)-(12)) reads the post-collision population
 ``f*_i(x)`` at every link (for the force, torque and self-friction sums) and writes one ghost
 population ``f[opp(i), s]`` per link (Eq. (8)). This script measures the bare data movement of those
 two passes and nothing else (no lever arms, no surface velocity, no implicit update, no remap):
@@ -12,7 +12,7 @@ in two placements, on the state of ``benchmarks/particles.py`` (the paper's pipe
 115 cubes of 8 mm, 30 %, after ``--warmup`` coupled steps):
 
 * ``separate``: the passes over all links in the coupling's own order (particle, direction), after
-  the whole sweep: the layout ``lbmpipe.coupling`` uses;
+  the whole sweep: the layout ``lbmpipe.particles.coupling`` uses;
 * ``fused``: the sweep run chunk by chunk (its own column chunks), each chunk's links filled just
   before its columns are swept and captured just after, while those rows are in cache: the best
   placement a particle-aware sweep could have.

@@ -40,8 +40,10 @@ from _common import (  # noqa: E402
     set_threads,
 )
 
-from lbmpipe import boundaries, effects  # noqa: E402
-from lbmpipe.lattice import get_lattice  # noqa: E402
+from lbmpipe.fluid import boundaries
+
+from lbmpipe import effects# noqa: E402
+from lbmpipe.fluid.lattice import get_lattice  # noqa: E402
 from lbmpipe.solver import Simulation  # noqa: E402
 
 LATTICE = "D3Q15"

@@ -11,7 +11,7 @@ from __future__ import annotations
 import argparse
 import time
 
-from lbmpipe.packing import (
+from lbmpipe.particles.packing import (
     PAPER_COUNTS,
     PAPER_PIPE_LENGTH,
     PAPER_PIPE_RADIUS,

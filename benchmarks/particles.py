@@ -5,7 +5,7 @@ flow-rate driving (tau = 1.78), D3Q15 BGK, half-way bounce-back wall (``scenes/p
 built through ``lbmpipe.solver.simulation_from_scene`` exactly as a run builds it, with
   * 115 cubes of 8 mm (``particles.packed``: 30 % by volume), and
   * 18 cylinders of 16 x 16 mm (30 %),
-neutrally buoyant and free, at packed random positions and orientations (``lbmpipe.packing``),
+neutrally buoyant and free, at packed random positions and orientations (``lbmpipe.particles.packing``),
 starting at rest in the parabolic flow. Collisions are off by default (``--collisions`` turns them
 on; they are then reported on their own line, outside the particle share).
 

@@ -47,8 +47,9 @@ def _numba_cache_by_source() -> None:
     if os.environ.get("NUMBA_CACHE_DIR"):
         return
     digest = hashlib.sha256()
-    for path in sorted(Path(__file__).resolve().parent.glob("*.py")):
-        digest.update(path.name.encode())
+    package = Path(__file__).resolve().parent
+    for path in sorted(package.rglob("*.py")):  # every subpackage too: a kernel inlines code from any of them
+        digest.update(path.relative_to(package).as_posix().encode())
         digest.update(path.read_bytes())
     folder = cache_root() / "numba" / digest.hexdigest()[:16]
     try:

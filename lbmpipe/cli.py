@@ -71,7 +71,7 @@ COST_MODEL_PATHS = tuple(f"results/{lvl}/study/cost_model.json" for lvl in ("pap
 
 
 def find_cost_model(explicit: str | None = None) -> tuple[dict | None, str | None]:
-    """The accuracy-cost study's fitted cost model (``lbmpipe.study.fit_cost_model``): ``explicit``
+    """The accuracy-cost study's fitted cost model (``lbmpipe.reproduction.study.fit_cost_model``): ``explicit``
     if given, else the first of ``COST_MODEL_PATHS`` under the current directory."""
     import json
 
@@ -114,7 +114,7 @@ def format_report(scene: Scene, params: LatticeParams, source: str = "", cost_mo
         ("estimated run time", f"{_duration(params.estimated_seconds)}  (lbmpipe.cost, {params.fluid_nodes * params.n_steps:.3g} node updates)"),
     ]
     if cost_model is not None and cost_model[0] is not None:
-        from .study import predict_seconds
+        from .reproduction.study import predict_seconds
 
         model, path = cost_model
         derived.append(("predicted run time", f"{_duration(predict_seconds(scene, params, model))}  (cost model of "
@@ -203,7 +203,7 @@ def _cmd_run(args) -> int:
 
 
 def _cmd_stability(args) -> int:
-    from lbmpipe import stability
+    from lbmpipe.reproduction import stability
 
     cases = stability.suite()
     if args.cases:
@@ -225,7 +225,7 @@ def _cmd_document(args) -> int:
     # linked definition, this refreshes the links without rerunning a single case.
     import yaml
 
-    from .literate import build_checked_document
+    from .reproduction.literate import build_checked_document
 
     root = Path(args.root).resolve()
     fid_dir = root / "results" / args.fidelity
@@ -264,7 +264,7 @@ def build_parser() -> argparse.ArgumentParser:
     p_run.add_argument("--keep-checkpoint", action="store_true",
                        help="keep the checkpoint (with the final state) when the run completes")
     p_run.set_defaults(func=_cmd_run)
-    p_st = sub.add_parser("stability", help="run the stability suite (lbmpipe.stability) and print/write its table")
+    p_st = sub.add_parser("stability", help="run the stability suite (lbmpipe.reproduction.stability) and print/write its table")
     p_st.add_argument("--fidelity", default="smoke", choices=["smoke", "quick", "paper"],
                       help="lattice spacing and step counts of the suite (default smoke)")
     p_st.add_argument("--cases", nargs="+", default=None, metavar="CASE", help="run only these cases")

@@ -20,8 +20,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from . import boundaries as bnd
-from .kernels import KernelSpec, get_kernel
+from .fluid import boundaries as bnd
+from .fluid.kernels import KernelSpec, get_kernel
 
 
 class Effect:

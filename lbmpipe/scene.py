@@ -217,7 +217,7 @@ class ParticleBody(_Model):
 class RandomParticles(_Model):
     """A group of identical particles at uniformly random positions and orientations, placed by
     random sequential addition of non-overlapping bounding spheres (dilute suspensions only; dense
-    packings are `lbmpipe.packing`'s job). Give `count` or `concentration`."""
+    packings are `lbmpipe.particles.packing`'s job). Give `count` or `concentration`."""
 
     shape: ShapeName = Field(description="`sphere`, `cylinder` or `cube`.")
     diameter_mm: Optional[float] = Field(None, gt=0, description="Sphere and cylinder: diameter in mm.")
@@ -235,7 +235,7 @@ class RandomParticles(_Model):
 class PackedParticles(_Model):
     """A dense random packing of identical particles in the pipe (the paper's 30 % and 50 %
     suspensions): uniformly random positions and orientations without overlap, built by
-    `lbmpipe.packing.pack` (random start, then grow-and-relax). The count is
+    `lbmpipe.particles.packing.pack` (random start, then grow-and-relax). The count is
     round(concentration * pipe volume / particle volume). A target that cannot be packed within
     `max_seconds` is an error naming the highest concentration reached; another concentration is
     never run silently. Pipe only, and alone (no `bodies` or `random` beside it)."""
@@ -257,7 +257,7 @@ class PackedParticles(_Model):
 
 class Collisions(_Model):
     """Particle-particle and particle-wall collisions: the paper's instantaneous impulses,
-    Eqs. (16)-(21), with overlap removal (`lbmpipe/collisions.py`). Lengths are in lattice
+    Eqs. (16)-(21), with overlap removal (`lbmpipe/particles/collisions.py`). Lengths are in lattice
     spacings because they are numerical tolerances of the discrete step."""
 
     enabled: bool = Field(True, description="Resolve collisions. `false` lets particles pass through each other and the wall "
@@ -277,7 +277,7 @@ class Collisions(_Model):
 
 class Particles(_Model):
     """Rigid particles coupled to the fluid (Ladd's moving bounce-back, Eqs. (8)-(12)); see
-    `lbmpipe/coupling.py`. Bodies are numbered in order: `bodies` first, then each `random`
+    `lbmpipe/particles/coupling.py`. Bodies are numbered in order: `bodies` first, then each `random`
     group, then the `packed` group."""
 
     bodies: list[ParticleBody] = Field(default_factory=list, description="Explicitly placed particles.")

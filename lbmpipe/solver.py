@@ -25,11 +25,11 @@ from pathlib import Path
 import numba
 import numpy as np
 
-from . import boundaries as bnd
+from .fluid import boundaries as bnd
 from . import effects as fx
-from . import observables as obs
-from .kernels import KernelSpec, dtype_of
-from .lattice import get_lattice
+from .fluid import observables as obs
+from .fluid.kernels import KernelSpec, dtype_of
+from .fluid.lattice import get_lattice
 
 #: column chunks of the fluid sweep: 4 per thread up to 16 threads
 SWEEP_CHUNKS = 64
@@ -140,8 +140,8 @@ def particle_system_from_scene(scene, params, grid):
     pspec = scene.particles
     if pspec is None or not (pspec.bodies or pspec.random or pspec.packed):
         return None, []
-    from .coupling import ParticleSystem
-    from .particles import bodies_from_scene
+    from .particles.coupling import ParticleSystem
+    from .particles.placement import bodies_from_scene
 
     info: dict = {}
     bodies, static = bodies_from_scene(scene, params, info)
@@ -156,8 +156,8 @@ def collision_effect(scene, params, system):
     ``particles.collisions.enabled: false``): the particles' domain in lattice units."""
     if system is None or not len(system.free_ids) or not scene.particles.collisions.enabled:
         return None
-    from .collisions import CollisionEffect, CollisionParams, Domain
-    from .particles import domain_geometry
+    from .particles.collisions import CollisionEffect, CollisionParams, Domain
+    from .particles.placement import domain_geometry
 
     lo, hi, periodic, radius = domain_geometry(scene, params)
     dom = Domain.pipe(radius, hi[2] - lo[2], z0=lo[2]) if radius > 0 else Domain.box(lo, hi, periodic)
@@ -182,7 +182,7 @@ def simulation_from_scene(scene, params, guard: bool = True) -> Simulation:
     flux = scene.driving.kind == "flow_rate"
     after: list[fx.Effect] = []
     if system is not None:
-        from .coupling import particle_effects
+        from .particles.coupling import particle_effects
 
         bouzidi = [e.links for e in walls if isinstance(e, fx.WallBouzidi)]
         pre, before, after = particle_effects(system, flux_control=flux, bouzidi_links=bouzidi[0] if bouzidi else None,
@@ -266,7 +266,7 @@ def run_scene(scene, params, out_dir: Path, progress: bool = True, max_steps: in
     """
     from . import checkpoint as ckpt
     from . import outputs
-    from .collisions import CollisionEffect
+    from .particles.collisions import CollisionEffect
     from .guard import Unstable
 
     out_dir = Path(out_dir)
@@ -289,7 +289,7 @@ def run_scene(scene, params, out_dir: Path, progress: bool = True, max_steps: in
     resumed_from = None
     fingerprint = ckpt.scene_fingerprint(scene) if checkpoint is not None else ""
     if ps is not None:
-        from . import particles as particles_out
+        from .particles import placement as particles_out
 
         recorder = particles_out.ParticleRecorder(ps, units)
     if checkpoint is not None and Path(checkpoint).exists():

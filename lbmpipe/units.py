@@ -19,7 +19,7 @@ import math
 from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING
 
-from lbmpipe.lattice import CS2
+from lbmpipe.fluid.lattice import CS2
 
 if TYPE_CHECKING:  # pragma: no cover
     from lbmpipe.scene import Scene

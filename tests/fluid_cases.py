@@ -4,10 +4,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from lbmpipe import boundaries as bnd
+from lbmpipe.fluid import boundaries as bnd
 from lbmpipe import effects as fx
-from lbmpipe import observables as obs
-from lbmpipe.lattice import get_lattice
+from lbmpipe.fluid import observables as obs
+from lbmpipe.fluid.lattice import get_lattice
 from lbmpipe.solver import Simulation
 
 MAGIC = 3.0 / 16.0

@@ -1,4 +1,4 @@
-"""The paper's 14 claims judged from results tables (lbmpipe.claims), on small synthetic tables that
+"""The paper's 14 claims judged from results tables (lbmpipe.reproduction.claims), on small synthetic tables that
 follow the pipeline contract: the verdict follows the data, never the claim."""
 
 import json
@@ -7,7 +7,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from lbmpipe import claims
+from lbmpipe.reproduction import claims
 
 AV_COLUMNS = ["case", "shape", "size_label", "diameter_mm", "length_mm", "edge_mm", "concentration", "reynolds",
               "collisions", "status", "concentration_achieved", "n_particles", "samples",

@@ -1,4 +1,4 @@
-"""Impulse collision model (lbmpipe.collisions), Eqs. (16)-(21): conservation laws, restitution,
+"""Impulse collision model (lbmpipe.particles.collisions), Eqs. (16)-(21): conservation laws, restitution,
 hand-worked impacts, overlap control and a long dry run in the pipe."""
 
 import copy
@@ -9,10 +9,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from lbmpipe.collisions import CollisionParams, Domain, NeighbourList, resolve_collisions
-from lbmpipe.contact import contact_pair, contact_pipe
-from lbmpipe.rigid import Bodies, drift, quat_from_axis_angle, quat_to_matrix, random_quaternions
-from lbmpipe.shapes import CUBE, CYLINDER, SPHERE
+from lbmpipe.particles.collisions import CollisionParams, Domain, NeighbourList, resolve_collisions
+from lbmpipe.particles.contact import contact_pair, contact_pipe
+from lbmpipe.particles.rigid import Bodies, drift, quat_from_axis_angle, quat_to_matrix, random_quaternions
+from lbmpipe.particles.shapes import CUBE, CYLINDER, SPHERE
 
 FREE = Domain.box((-100.0, -100.0, -100.0), (100.0, 100.0, 100.0))
 IDENTITY = np.array([1.0, 0.0, 0.0, 0.0])
@@ -433,7 +433,7 @@ def test_largest_overlap_reported_after_a_call_is_the_one_measured_afresh_on_the
     # since it was measured from the stored gap instead of measuring it again: measured afresh,
     # the returned bodies must show exactly the overlap it reports. Start overlapping (grid closer
     # than the body size, pipe narrower than the grid) so that pairs and walls both overlap.
-    from lbmpipe.contact import bounding_radii, candidate_pairs
+    from lbmpipe.particles.contact import bounding_radii, candidate_pairs
 
     for seed in range(3):
         radius, length = 6.0, 14.0
@@ -485,9 +485,9 @@ def test_narrow_phase_gives_exact_touching_contacts_and_lower_bounds_beyond_the_
     # The collision step computes exact geometry only where it is used (gap <= contact_gap);
     # wider pair gaps and wall gaps far from reach may be lower bounds. Everything else in the
     # step relies on exactly this: equal bits at or below contact_gap, never above the true gap.
-    from lbmpipe import collisions as C
-    from lbmpipe.contact import bounding_radii, candidate_pairs
-    from lbmpipe.rigid import quat_to_matrices
+    from lbmpipe.particles.placement import collisions as C
+    from lbmpipe.particles.contact import bounding_radii, candidate_pairs
+    from lbmpipe.particles.rigid import quat_to_matrices
 
     radius, length = 6.0, 14.0
     b = _dense_mixed_bodies(np.random.default_rng(8), radius, length)

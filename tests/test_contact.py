@@ -1,4 +1,4 @@
-"""Contact geometry (lbmpipe.contact): GJK/EPA gaps, normals and contact points against exact
+"""Contact geometry (lbmpipe.particles.contact): GJK/EPA gaps, normals and contact points against exact
 values, the pipe and planar walls, and the cell-list broad phase."""
 
 import math
@@ -7,10 +7,10 @@ import numpy as np
 import pytest
 from scipy.optimize import minimize
 
-from lbmpipe.contact import (bodies_overlap_ws, candidate_pairs, contact_pair, contact_pipe, contact_plane, list_displacement,
+from lbmpipe.particles.contact import (bodies_overlap_ws, candidate_pairs, contact_pair, contact_pipe, contact_plane, list_displacement,
                              listed_pairs, neighbour_list, new_scratch)
-from lbmpipe.rigid import quat_from_axis_angle, quat_to_matrix, random_quaternions
-from lbmpipe.shapes import CUBE, CYLINDER, SPHERE, support_body
+from lbmpipe.particles.rigid import quat_from_axis_angle, quat_to_matrix, random_quaternions
+from lbmpipe.particles.shapes import CUBE, CYLINDER, SPHERE, support_body
 
 IDENTITY = np.array([1.0, 0.0, 0.0, 0.0])
 
@@ -165,7 +165,7 @@ def test_overlap_test_without_epa_agrees_with_the_sign_of_the_gap_for_random_pai
 def _gjk_gap(h1, x1, R1, h2, x2, R2):
     """Gap and unit normal of two separated cylinders by GJK alone (the reference for the exact
     path, which body_contact now takes for cylinder pairs)."""
-    from lbmpipe.contact import _gjk, _gjk_scratch
+    from lbmpipe.particles.contact import _gjk, _gjk_scratch
 
     W, WA, WB, lam, pa, pb, v = _gjk_scratch(new_scratch())
     scale = math.hypot(h1[0], h1[2]) + math.hypot(h2[0], h2[2])
@@ -183,7 +183,7 @@ def _on_cylinder_surface(p, h, x, R, tol):
 @pytest.mark.parametrize("shapes", [((4.0, 4.0), (4.0, 4.0)), ((8.0, 8.0), (8.0, 12.0)), ((4.0, 4.0), (8.0, 12.0))])
 def test_exact_cylinder_gap_equals_gjk_for_random_separated_pairs_of_the_paper_shapes(shapes):
     # (radius, half length) of the paper's 8x8, 16x16 and 16x24 mm cylinders at dx = 1 mm
-    from lbmpipe.contact import cylinder_gap_exact
+    from lbmpipe.particles.contact import cylinder_gap_exact
 
     rng = np.random.default_rng(7)
     h1, h2 = (np.array([r, r, l]) for r, l in shapes)
@@ -220,7 +220,7 @@ def test_exact_cylinder_gap_is_certified_by_one_feature_pair_only_so_the_try_ord
     # _cylinder_gap tries the rim-side searches in an order set by the axes' lean towards the
     # centre line, after the candidate that won the step before if it is given one; the result
     # is the fixed order's as long as no two candidates are certified
-    from lbmpipe.contact import (_EXACT_TOL, _N_CANDIDATES, _certified_gap, _cyl_candidate, _cyl_frames,
+    from lbmpipe.particles.contact import (_EXACT_TOL, _N_CANDIDATES, _certified_gap, _cyl_candidate, _cyl_frames,
                                  _cylinder_gap, cylinder_gap_exact)
 
     rng = np.random.default_rng(11)
@@ -260,7 +260,7 @@ def test_exact_cylinder_gap_is_certified_by_one_feature_pair_only_so_the_try_ord
 
 
 def test_exact_cylinder_gap_of_crossed_sides_a_cap_under_a_tilted_rim_and_two_rims():
-    from lbmpipe.contact import cylinder_gap_exact
+    from lbmpipe.particles.contact import cylinder_gap_exact
 
     h = np.array([1.0, 1.0, 2.0])
     nrm, pa, pb = np.empty(3), np.empty(3), np.empty(3)
@@ -296,7 +296,7 @@ def test_exact_cylinder_gap_of_crossed_sides_a_cap_under_a_tilted_rim_and_two_ri
 def test_exact_cylinder_overlap_test_never_contradicts_gjk_and_settles_almost_every_pair():
     # the time-of-impact bisection asks "do they overlap?" of cylinder pairs near touching; the
     # exact test answers from a point inside the other body or a separating direction, else -1
-    from lbmpipe.contact import _gjk, _gjk_scratch, cylinders_overlap_exact
+    from lbmpipe.particles.contact import _gjk, _gjk_scratch, cylinders_overlap_exact
 
     rng = np.random.default_rng(3)
     W, WA, WB, lam, pa, pb, v = _gjk_scratch(new_scratch())
@@ -477,7 +477,7 @@ def test_contact_across_a_periodic_boundary_uses_the_nearest_image():
 def test_scalar_support_point_is_bit_identical_to_shapes_support_body():
     # the GJK loop uses a scalar copy of shapes.support_body (no allocation); the two must agree
     # bit for bit, including ties (zero components, directions along the cylinder axis)
-    from lbmpipe.contact import _support3
+    from lbmpipe.particles.contact import _support3
 
     rng = np.random.default_rng(11)
     dirs = list(rng.standard_normal((200, 3))) + [np.array(d, float) for d in
@@ -499,7 +499,7 @@ def test_side_against_side_contact_point_is_bit_identical_to_the_general_patch_c
     # body_contact_ws finds the contact point of two cylinder sides on scalars (_side_side_patch)
     # instead of through _manifold_point's scratch views; the two must agree bit for bit, for
     # parallel, nearly parallel and crossed sides, overlapping, touching end to end or apart
-    from lbmpipe.contact import _F_SIDE, _cyl_feature_kind, _manifold_point, _side_side_patch
+    from lbmpipe.particles.contact import _F_SIDE, _cyl_feature_kind, _manifold_point, _side_side_patch
 
     def frame(e, rng):
         u = np.cross(e, rng.standard_normal(3))
@@ -545,7 +545,7 @@ def test_rim_sample_table_is_bit_identical_to_the_trigonometry_it_replaces():
     # committed result) would change in the last bits
     from numba import njit
 
-    from lbmpipe.contact import _RIM_COS, _RIM_SIN, RIM_SAMPLES
+    from lbmpipe.particles.contact import _RIM_COS, _RIM_SIN, RIM_SAMPLES
 
     @njit
     def trig(n):

@@ -1,4 +1,4 @@
-"""Particles coupled to the fluid (lbmpipe.coupling): Ladd's moving bounce-back, Eqs. (8)-(12),
+"""Particles coupled to the fluid (lbmpipe.particles.coupling): Ladd's moving bounce-back, Eqs. (8)-(12),
 the implicit velocity update and the rigid-body motion, Eqs. (13)-(15).
 
 Lattice units throughout (dx = dt = 1, fluid density 1). Small boxes, a few hundred to a few
@@ -10,12 +10,12 @@ import math
 import numpy as np
 import pytest
 
-from lbmpipe import boundaries as bnd
-from lbmpipe import coupling as cp
+from lbmpipe.fluid import boundaries as bnd
+from lbmpipe.particles.placement import coupling as cp
 from lbmpipe import effects as fx
-from lbmpipe import shapes
-from lbmpipe.lattice import get_lattice
-from lbmpipe.rigid import Bodies, quat_from_axis_angle, random_quaternions, rotate
+from lbmpipe.particles.placement import shapes
+from lbmpipe.fluid.lattice import get_lattice
+from lbmpipe.particles.rigid import Bodies, quat_from_axis_angle, random_quaternions, rotate
 from lbmpipe.solver import Simulation
 
 LAT = get_lattice("D3Q15")
@@ -376,7 +376,7 @@ _DIGEST = """
 import hashlib, json, sys
 sys.path.insert(0, sys.argv[1])
 from test_coupling import _moving_particles_run
-from lbmpipe import coupling
+from lbmpipe.particles.placement import coupling
 sim, system = _moving_particles_run(2)
 h = hashlib.sha256(sim.f.tobytes())
 for a in ("x", "v", "q", "wb"):

@@ -7,9 +7,9 @@ import numpy as np
 import pytest
 
 from lbmpipe import effects as fx
-from lbmpipe.boundaries import box_grid
+from lbmpipe.fluid.boundaries import box_grid
 from lbmpipe.guard import Unstable
-from lbmpipe.lattice import get_lattice
+from lbmpipe.fluid.lattice import get_lattice
 from lbmpipe.scene import Scene
 from lbmpipe.solver import Simulation, simulation_from_scene
 from lbmpipe.units import derive

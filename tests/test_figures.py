@@ -7,9 +7,9 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from lbmpipe import figures as F
-from lbmpipe import statistics as S
-from lbmpipe.rigid import quat_from_axis_angle
+from lbmpipe.reproduction import figures as F
+from lbmpipe.reproduction import statistics as S
+from lbmpipe.particles.rigid import quat_from_axis_angle
 
 FIG_STEMS = ["fig4_cylinders_re26", "fig5_cubes8_concentration", "fig6_cubes24_reynolds", "fig7a_shape_re9.4",
              "fig7b_shape_re26", "fig8_cylinder_orientation", "fig9_cube_orientation", "fig10_profiles"]

@@ -5,11 +5,11 @@ import numpy as np
 import pytest
 
 from fluid_cases import omega_minus, observed_order, pipe_poiseuille, run_to_steady
-from lbmpipe import boundaries as bnd
+from lbmpipe.fluid import boundaries as bnd
 from lbmpipe import effects as fx
-from lbmpipe import observables as obs
-from lbmpipe.kernels import KernelSpec, render
-from lbmpipe.lattice import get_lattice
+from lbmpipe.fluid import observables as obs
+from lbmpipe.fluid.kernels import KernelSpec, render
+from lbmpipe.fluid.lattice import get_lattice
 from lbmpipe.solver import Simulation
 
 PIPE_SIZES = [8, 12, 16, 20, 24, 32]

@@ -5,7 +5,7 @@ import itertools
 import numpy as np
 import pytest
 
-from lbmpipe.lattice import CS2, LATTICES, get_lattice
+from lbmpipe.fluid.lattice import CS2, LATTICES, get_lattice
 
 
 def test_d3q15_matches_table1_order_weights_and_opposites():

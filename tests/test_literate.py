@@ -1,4 +1,4 @@
-"""The literate reproduction (lbmpipe.literate): every equation of the paper is linked to the code
+"""The literate reproduction (lbmpipe.reproduction.literate): every equation of the paper is linked to the code
 that implements it, the links stay true, and the document is built from results alone."""
 
 import ast
@@ -10,8 +10,8 @@ import pandas as pd
 import pytest
 import yaml
 
-from lbmpipe import claims, literate
-from lbmpipe.cases import case_scene
+from lbmpipe.reproduction import claims, literate
+from lbmpipe.reproduction.cases import case_scene
 from lbmpipe.scene import Scene
 from lbmpipe.units import derive
 
@@ -49,6 +49,17 @@ def test_every_equation_reference_is_a_definition_whose_docstring_cites_it(index
                 assert re.match(rf"\s*(async\s+def|def|class)\s+{re.escape(name)}\b", lines[ref.line - 1]), ref
                 doc = ast.get_docstring(defs[ref.line], clean=False)
             assert n in literate.cited_equations(doc), (n, ref)
+
+
+def test_equations_cited_in_subpackages_are_indexed_with_their_paths(index, tmp_path):
+    # the fluid, particle and reproduction layers live in subpackages: Eq. (7) (the lattice) and
+    # Eqs. (16)-(21) (collisions) are cited there only
+    assert any(r.module == "lbmpipe/fluid/lattice.py" for r in index[7])
+    assert any(r.module == "lbmpipe/particles/collisions.py" for r in index[16])
+    pkg = tmp_path / "lbmpipe"
+    (pkg / "deep" / "deeper").mkdir(parents=True)
+    (pkg / "deep" / "deeper" / "m.py").write_text('def f():\n    """Implements Eq. (3)."""\n')
+    assert literate.equation_index(pkg)[3] == [literate.Ref("lbmpipe/deep/deeper/m.py", "f", 1)]
 
 
 def test_citation_forms_single_range_list_pair_and_subequation_are_read():
@@ -168,20 +179,20 @@ def test_check_links_reports_links_whose_definition_moved_or_no_longer_cites_the
     lattice = repo / "lbmpipe" / "lattice.py"
     lattice.write_text("\n" + lattice.read_text())
     stale = literate.check_links(out, repo)
-    assert stale and all(s.startswith("lbmpipe/lattice.py#L") and "no longer holds" in s for s in stale)
+    assert stale and all(s.startswith("lbmpipe/fluid/lattice.py#L") and "no longer holds" in s for s in stale)
     assert len(stale) == len(by_file["lattice.py"])
 
     # the line still holds the definition but its docstring stops citing the equation
     lattice.write_text(lattice.read_text()[1:].replace("Table 1 and Eq. (7)", "Table 1"))
     stale = literate.check_links(out, repo)
     line = next(ln for ln, eq, qual in by_file["lattice.py"] if qual == "get_lattice")
-    assert f"lbmpipe/lattice.py#L{line}: docstring of get_lattice no longer cites Eq. (7)" in stale
-    assert all(s.startswith("lbmpipe/lattice.py") for s in stale)
+    assert f"lbmpipe/fluid/lattice.py#L{line}: docstring of get_lattice no longer cites Eq. (7)" in stale
+    assert all(s.startswith("lbmpipe/fluid/lattice.py") for s in stale)
 
     # a file that is gone
     (repo / "lbmpipe" / "observables.py").unlink()
     stale = literate.check_links(out, repo)
-    assert any(s.startswith("lbmpipe/observables.py#L") and s.endswith("file missing") for s in stale)
+    assert any(s.startswith("lbmpipe/fluid/observables.py#L") and s.endswith("file missing") for s in stale)
 
 
 @pytest.mark.parametrize("level", ["paper"])

@@ -33,7 +33,19 @@ def test_an_edit_of_any_module_gives_numba_a_fresh_cache_folder(tmp_path):
     first = _cache_folder(copy, home)
     assert Path(first).parent == home / "lbmpipe" / "numba" and Path(first).is_dir()
     assert _cache_folder(copy, home) == first  # same sources, same folder: the cache is reused
-    contact = copy / "lbmpipe" / "contact.py"
+    top = copy / "lbmpipe" / "solver.py"
+    top.write_text(top.read_text() + "\n# edited\n")
+    second = _cache_folder(copy, home)
+    assert second != first
+
+
+def test_an_edit_of_a_module_in_a_subpackage_gives_numba_a_fresh_cache_folder(tmp_path):
+    # collisions.py compiles contact.py's GJK into its own functions: both live in lbmpipe/particles/
+    copy = tmp_path / "src"
+    shutil.copytree(PACKAGE, copy / "lbmpipe", ignore=shutil.ignore_patterns("__pycache__"))
+    home = tmp_path / "cache"
+    first = _cache_folder(copy, home)
+    contact = copy / "lbmpipe" / "particles" / "contact.py"
     contact.write_text(contact.read_text() + "\n# edited\n")
     assert _cache_folder(copy, home) != first
 

@@ -1,4 +1,4 @@
-"""Random dense packings in the pipe (lbmpipe.packing): particle counts of the paper, no overlap,
+"""Random dense packings in the pipe (lbmpipe.particles.packing): particle counts of the paper, no overlap,
 containment, determinism, orientation statistics, and honest failure."""
 
 import math
@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 from scipy.stats import kstest
 
-from lbmpipe.contact import contact_pair, contact_pipe
-from lbmpipe.packing import (
+from lbmpipe.particles.contact import contact_pair, contact_pipe
+from lbmpipe.particles.packing import (
     PAPER_COUNTS,
     PAPER_SHAPES,
     PackingError,
@@ -16,8 +16,8 @@ from lbmpipe.packing import (
     count_for_concentration,
     pack,
 )
-from lbmpipe.rigid import quat_to_matrix
-from lbmpipe.shapes import CUBE, CYLINDER, bounding_radius
+from lbmpipe.particles.rigid import quat_to_matrix
+from lbmpipe.particles.shapes import CUBE, CYLINDER, bounding_radius
 
 R, L = 25.0, 100.0
 TOL = 1e-3

@@ -1,4 +1,4 @@
-"""Particles in scenes (lbmpipe.scene `particles`, lbmpipe.particles) and their outputs."""
+"""Particles in scenes (lbmpipe.scene `particles`, lbmpipe.particles.placement) and their outputs."""
 
 import copy
 import math
@@ -8,9 +8,9 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from lbmpipe import particles as pt
+from lbmpipe.particles.placement import placement as pt
 from lbmpipe.scene import Scene, SceneError, load_scene
-from lbmpipe.shapes import CUBE, CYLINDER, SPHERE
+from lbmpipe.particles.shapes import CUBE, CYLINDER, SPHERE
 from lbmpipe.solver import run_scene, simulation_from_scene
 from lbmpipe.units import derive
 
@@ -101,7 +101,7 @@ def test_random_placement_that_cannot_fit_fails_with_the_number_reached():
     with pytest.raises(SceneError) as err:
         pt.bodies_from_scene(scene, derive(scene))
     assert err.value.field == "particles.random[0].concentration"
-    assert "fitted only" in err.value.message and "lbmpipe.packing" in err.value.fix
+    assert "fitted only" in err.value.message and "lbmpipe.particles.packing" in err.value.fix
 
 
 BAD = [

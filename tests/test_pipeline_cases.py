@@ -1,4 +1,4 @@
-"""The paper's cases as scenes (lbmpipe.cases), packed particle groups, collisions as an effect,
+"""The paper's cases as scenes (lbmpipe.reproduction.cases), packed particle groups, collisions as an effect,
 mass correction and the flow-rate controller with particles."""
 
 import copy
@@ -9,10 +9,10 @@ import pandas as pd
 import pytest
 import yaml
 
-from lbmpipe import cases
+from lbmpipe.reproduction import cases
 from lbmpipe import effects as fx
-from lbmpipe.collisions import CollisionEffect
-from lbmpipe.coupling import MassCorrection
+from lbmpipe.particles.collisions import CollisionEffect
+from lbmpipe.particles.coupling import MassCorrection
 from lbmpipe.outputs import write_summary
 from lbmpipe.scene import Scene, SceneError, load_scene
 from lbmpipe.solver import run_scene, simulation_from_scene
@@ -189,7 +189,7 @@ def test_summary_records_packing_and_collisions(tmp_path):
 
 
 def test_a_case_named_in_duration_s_by_case_averages_longer_and_only_that_case():
-    from lbmpipe.cases import case_scene
+    from lbmpipe.reproduction.cases import case_scene
     fid = {"dx_mm": 2.5, "run": {"duration_s": 0.3, "spinup_s": 0.1, "sample_interval_s": 0.025},
            "duration_s_by_case": {"cube24_c30_re26": 3.0}}
     case = {"reynolds": 26, "particles": {"shape": "cube", "edge_mm": 24, "concentration": 0.3}}

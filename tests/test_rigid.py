@@ -7,7 +7,7 @@ import pytest
 from scipy import stats
 from scipy.integrate import solve_ivp
 
-from lbmpipe.rigid import (
+from lbmpipe.particles.rigid import (
     Bodies,
     advance,
     angular_momentum_lab,
@@ -25,7 +25,7 @@ from lbmpipe.rigid import (
     rotate,
     rotate_inv,
 )
-from lbmpipe.shapes import CUBE, CYLINDER, make_shape, principal_inertia, volume
+from lbmpipe.particles.shapes import CUBE, CYLINDER, make_shape, principal_inertia, volume
 
 ASYM = np.array([1.0, 2.0, 3.0])
 

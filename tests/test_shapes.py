@@ -5,8 +5,8 @@ import math
 import numpy as np
 import pytest
 
-from lbmpipe import shapes
-from lbmpipe.shapes import (
+from lbmpipe.particles.placement import shapes
+from lbmpipe.particles.shapes import (
     CUBE,
     CYLINDER,
     SPHERE,

@@ -1,4 +1,4 @@
-"""Stability suite (lbmpipe.stability) at CI size: the hard cases run with the guard and meet the
+"""Stability suite (lbmpipe.reproduction.stability) at CI size: the hard cases run with the guard and meet the
 stated invariants (no NaN, mass drift, bounded kinetic energy, particles inside, overlaps within
 the collision bound); the paper's own Re 26 time step is recorded, whatever its outcome.
 
@@ -10,7 +10,7 @@ import math
 
 import pytest
 
-from lbmpipe import stability as st
+from lbmpipe.reproduction import stability as st
 from lbmpipe.scene import Scene
 from lbmpipe.units import derive
 

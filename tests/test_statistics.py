@@ -9,8 +9,8 @@ import pandas as pd
 import pytest
 from scipy.signal import lfilter
 
-from lbmpipe import statistics as S
-from lbmpipe.rigid import quat_from_axis_angle, quat_mul, rotate
+from lbmpipe.reproduction import statistics as S
+from lbmpipe.particles.rigid import quat_from_axis_angle, quat_mul, rotate
 
 PARQUET_COLUMNS = ["t_s", "id", "x_mm", "y_mm", "z_mm", "vx_m_s", "vy_m_s", "vz_m_s", "qw", "qx", "qy", "qz",
                    "wx_rad_s", "wy_rad_s", "wz_rad_s", "fx_N", "fy_N", "fz_N", "tx_N_m", "ty_N_m", "tz_N_m"]
@@ -111,7 +111,7 @@ def test_cylinder_rotated_30_deg_about_x_has_axis_angle_30():
 
 def test_cylinder_axis_angle_agrees_with_rigid_rotation_of_body_z():
     rng = np.random.default_rng(3)
-    from lbmpipe.rigid import random_quaternions
+    from lbmpipe.particles.rigid import random_quaternions
     q = random_quaternions(50, rng)
     ref = [math.degrees(math.acos(abs(rotate(qi, np.array([0.0, 0.0, 1.0]))[2]))) for qi in q]
     np.testing.assert_allclose(S.cylinder_axis_angle(q), ref, atol=1e-9)
@@ -127,7 +127,7 @@ def test_cube_turned_about_camera_axis_y_shows_folded_angle(deg, projected, axis
 
 def test_cube_angles_are_invariant_under_the_cube_symmetry_group_and_bounded():
     rng = np.random.default_rng(4)
-    from lbmpipe.rigid import random_quaternions
+    from lbmpipe.particles.rigid import random_quaternions
     q = random_quaternions(200, rng)
     for axis in ([1, 0, 0], [0, 1, 0], [0, 0, 1]):  # body quarter turns map the cube onto itself
         q2 = np.array([quat_mul(qi, _q(axis, 90.0)) for qi in q])

@@ -1,4 +1,4 @@
-"""The accuracy-cost study (lbmpipe.study): its scenes, Pareto front, recommendation and cost model.
+"""The accuracy-cost study (lbmpipe.reproduction.study): its scenes, Pareto front, recommendation and cost model.
 
 The study's physics is the solver's (validated elsewhere); here: every knob setting builds a
 valid scene that differs from the base in that knob alone, the bookkeeping picks the right
@@ -13,7 +13,7 @@ import pandas as pd
 import pytest
 import yaml
 
-from lbmpipe import study
+from lbmpipe.reproduction import study
 from lbmpipe.scene import Scene
 from lbmpipe.units import derive
 

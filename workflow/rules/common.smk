@@ -2,8 +2,8 @@
 import functools
 import json
 
-from lbmpipe import stability as lbm_stability
-from lbmpipe import study as lbm_study
+from lbmpipe.reproduction import stability as lbm_stability
+from lbmpipe.reproduction import study as lbm_study
 
 
 def _packing_input(wildcards):

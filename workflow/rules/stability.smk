@@ -1,7 +1,7 @@
-# Stability suite (lbmpipe.stability): the numerically hard cases (Re 26 at the paper's dt with BGK
+# Stability suite (lbmpipe.reproduction.stability): the numerically hard cases (Re 26 at the paper's dt with BGK
 # and TRT, tau near 1/2, 50 % packings, the largest particles at the wall, particles released in
 # contact, light particles, a long run) with the run-time guard, and their invariants, as a table.
-# Lattice spacing and step counts per fidelity: lbmpipe.stability.FIDELITY_DEFAULTS, overridden by
+# Lattice spacing and step counts per fidelity: lbmpipe.reproduction.stability.FIDELITY_DEFAULTS, overridden by
 # config["stability"][<fidelity>] ({dx_mm, steps, flow_steps, long_steps, long_dx_mm}).
 #   snakemake -c2 stability                      the table at the default fidelity
 #   snakemake -c2 stability --config fidelity=smoke

@@ -1,7 +1,7 @@
 import sys
 from pathlib import Path
 
-from lbmpipe.claims import write_claims
+from lbmpipe.reproduction.claims import write_claims
 
 sys.stderr = open(snakemake.log[0], "w")
 write_claims(Path(snakemake.output[0]).parent, snakemake.config["cases"])

@@ -1,7 +1,7 @@
 import sys
 from pathlib import Path
 
-from lbmpipe.figures import make_figures
+from lbmpipe.reproduction.figures import make_figures
 
 sys.stderr = open(snakemake.log[0], "w")
 fid_dir = Path(snakemake.output.pdf[0]).parent.parent

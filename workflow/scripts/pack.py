@@ -1,6 +1,6 @@
 import sys
 
-from lbmpipe.cases import pack_case
+from lbmpipe.reproduction.cases import pack_case
 
 sys.stderr = open(snakemake.log[0], "w")
 info = pack_case(snakemake.config, snakemake.wildcards.packing, snakemake.output.csv, snakemake.output.info)

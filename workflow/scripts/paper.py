@@ -1,7 +1,7 @@
 import sys
 from pathlib import Path
 
-from lbmpipe.literate import build_checked_document
+from lbmpipe.reproduction.literate import build_checked_document
 
 sys.stderr = open(snakemake.log[0], "w")
 out, stale = build_checked_document(Path.cwd(), snakemake.wildcards.fidelity, snakemake.config,

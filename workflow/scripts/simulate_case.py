@@ -1,7 +1,7 @@
 import sys
 from pathlib import Path
 
-from lbmpipe.cases import simulate_case
+from lbmpipe.reproduction.cases import simulate_case
 
 sys.stdout = sys.stderr = open(snakemake.log[0], "w")
 summary = simulate_case(snakemake.input.scene, snakemake.input.get("packing_info"),

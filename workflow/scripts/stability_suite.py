@@ -2,7 +2,7 @@
 import sys
 from pathlib import Path
 
-from lbmpipe import stability
+from lbmpipe.reproduction import stability
 
 sys.stdout = sys.stderr = open(snakemake.log[0], "w", buffering=1)
 fid = snakemake.wildcards.fidelity

@@ -2,7 +2,7 @@ import json
 import sys
 from pathlib import Path
 
-from lbmpipe.study import collect
+from lbmpipe.reproduction.study import collect
 
 sys.stdout = sys.stderr = open(snakemake.log[0], "w")
 root = Path(snakemake.output.table).parents[2]  # results/

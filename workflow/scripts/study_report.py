@@ -4,7 +4,7 @@ from pathlib import Path
 
 import pandas as pd
 
-from lbmpipe.study import report
+from lbmpipe.reproduction.study import report
 
 sys.stdout = sys.stderr = open(snakemake.log[0], "w")
 table = pd.read_csv(snakemake.input.table)

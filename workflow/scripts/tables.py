@@ -1,7 +1,7 @@
 import sys
 from pathlib import Path
 
-from lbmpipe.statistics import aggregate, runtime_table
+from lbmpipe.reproduction.statistics import aggregate, runtime_table
 
 sys.stderr = open(snakemake.log[0], "w")
 fid_dir = Path(snakemake.output.runtime).parent.parent

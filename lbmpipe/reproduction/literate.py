@@ -3,7 +3,7 @@ the method, the parameters, the figures, the claims and the costs of one fidelit
 
 Equation links. Docstrings cite the paper's equations by number (``Eq. (N)``, ``Eqs. (N)-(M)``,
 ``Eqs. (N), (M)``, ``Eq. (N, M)``); :func:`equation_index` reads them with :mod:`ast` (module,
-class and function docstrings of ``lbmpipe/*.py``), so the index is the code's own statement of
+class and function docstrings of ``lbmpipe/**/*.py``), so the index is the code's own statement of
 where each equation lives and cannot drift from it. Each link in the document carries a title
 ``"Eq. N: qualname"`` that :func:`check_links` uses to verify that the line still holds that
 definition and that its docstring still cites the equation.
@@ -85,7 +85,7 @@ PAPER_CAPTIONS: dict[str, str] = {
           "concentration, 26 in Reynolds number, 16 mm×16 mm in size)",
 }
 
-#: Our caption when ``lbmpipe.figures.FIGURE_CAPTIONS`` has none (NOTES.md, "Figures to regenerate").
+#: Our caption when ``lbmpipe.reproduction.figures.FIGURE_CAPTIONS`` has none (NOTES.md, "Figures to regenerate").
 FALLBACK_CAPTIONS: dict[str, str] = {
     "3": "Snapshot of the particles in the pipe (case in the file name).",
     "4": "Mean |angular velocity| (rad/s) about x, y, z: cylinders 16x16 and 16x24 mm, 30 %, Re 26.",
@@ -113,7 +113,7 @@ DECISIONS: list[tuple[str, str]] = [
                            "at Re 26; every level multiplies dt there by {re26_dt_factors} (config "
                            "`re26_dt_factor`); the parameter table shows the resulting τ and Mach."),
     ("Coarser levels", "Levels coarser than the paper's lattice keep the paper's Mach number (dt ∝ dx, "
-                       "acoustic scaling); τ then follows from Re (`lbmpipe.cases`)."),
+                       "acoustic scaling); τ then follows from Re (`lbmpipe.reproduction.cases`)."),
     ("Angular-velocity statistic", "Not defined by the paper: the mean of |Ω_x|, |Ω_y|, |Ω_z| in the lab "
                                    "frame over particles and samples after spin-up, with a 95 % confidence "
                                    "interval from batch means."),
@@ -191,14 +191,14 @@ def _docstring_owners(tree: ast.Module):
 
 
 def equation_index(package_dir: Path) -> dict[int, list[Ref]]:
-    """Equation number -> the places whose docstring cites it, from ``package_dir/*.py``.
+    """Equation number -> the places whose docstring cites it, from ``package_dir/**/*.py``.
 
     Functions and classes come before module docstrings, each group in file and line order; the
     module path is relative to the repository (the parent of ``package_dir``)."""
     package_dir = Path(package_dir).resolve()
     root = package_dir.parent
     index: dict[int, list[Ref]] = {}
-    for path in sorted(package_dir.glob("*.py")):
+    for path in sorted(package_dir.rglob("*.py")):  # the subpackages too
         tree = ast.parse(path.read_text(encoding="utf-8"), filename=str(path))
         rel = path.relative_to(root).as_posix()
         for qual, node, doc in _docstring_owners(tree):
@@ -330,10 +330,10 @@ def method_section(repo_root: Path, out_dir: Path) -> tuple[list[dict], list[int
 
 def parameter_rows(config: dict) -> tuple[list[dict], list[str]]:
     """Derived lattice values of the particle-free pipe at each fidelity level and Reynolds number
-    (``lbmpipe.cases.case_scene`` -> ``Scene`` -> ``lbmpipe.units.derive``)."""
+    (``lbmpipe.reproduction.cases.case_scene`` -> ``Scene`` -> ``lbmpipe.units.derive``)."""
     from .cases import FLOWS, case_scene
-    from .scene import Scene, SceneError
-    from .units import derive
+    from ..scene import Scene, SceneError
+    from ..units import derive
 
     rows, errors = [], []
     for fid_name, fid in (config.get("fidelities") or {}).items():
@@ -401,8 +401,8 @@ def _our_caption(stem: str) -> tuple[str, str]:
     if caps:
         for k in (stem, f"fig{key}", key, key.rstrip("ab") if key[:-1].isdigit() else None):
             if k is not None and k in caps:
-                return str(caps[k]), "lbmpipe.figures.FIGURE_CAPTIONS"
-    return FALLBACK_CAPTIONS.get(key, "(no caption)"), "fallback (lbmpipe.literate)"
+                return str(caps[k]), "lbmpipe.reproduction.figures.FIGURE_CAPTIONS"
+    return FALLBACK_CAPTIONS.get(key, "(no caption)"), "fallback (lbmpipe.reproduction.literate)"
 
 
 def _fig_sort(stem: str):

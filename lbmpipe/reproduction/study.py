@@ -301,9 +301,9 @@ def warm_up(config: dict, fidelity: str, out_json: Path) -> dict:
     import tempfile
     import time
 
-    from .scene import Scene
-    from .solver import run_scene
-    from .units import derive
+    from ..scene import Scene
+    from ..solver import run_scene
+    from ..units import derive
 
     groups: dict[str, tuple[int, dict]] = {}
     for rid, spec in plan(config, fidelity).items():
@@ -329,8 +329,8 @@ def write_run_scene(config: dict, fidelity: str, rid: str, path: Path):
     """Validate the scene of run ``rid`` and write it as YAML; returns the Scene."""
     import yaml
 
-    from .scene import Scene
-    from .units import derive
+    from ..scene import Scene
+    from ..units import derive
 
     runs = plan(config, fidelity)
     if rid not in runs:
@@ -609,7 +609,7 @@ def batch_means_halfwidth(x: np.ndarray, n_batches: int = 8, confidence: float =
 
 
 def _halfwidth(x: np.ndarray, n_batches: int) -> tuple[float, float, str]:
-    """Half-width from ``lbmpipe.statistics.batch_means`` when that module offers it (and its
+    """Half-width from ``lbmpipe.reproduction.statistics.batch_means`` when that module offers it (and its
     result can be read as a half-width), else from :func:`batch_means_halfwidth`."""
     try:
         from .statistics import batch_means  # type: ignore[attr-defined]
@@ -636,9 +636,9 @@ def _halfwidth(x: np.ndarray, n_batches: int) -> tuple[float, float, str]:
         elif hasattr(res, "half_width"):
             hw = res.half_width
         if hw is not None and np.isfinite(float(hw)):
-            return float(np.mean(x)), float(hw), "lbmpipe.statistics.batch_means"
+            return float(np.mean(x)), float(hw), "lbmpipe.reproduction.statistics.batch_means"
     mean, hw, _ = batch_means_halfwidth(x, n_batches)
-    return mean, hw, "lbmpipe.study.batch_means_halfwidth"
+    return mean, hw, "lbmpipe.reproduction.study.batch_means_halfwidth"
 
 
 def averaging_rows(config: dict, fidelity: str, root: Path = Path("results")) -> list[dict]:
@@ -801,8 +801,8 @@ def _joint(df, targets, cost, model, case_scene, case_threads=None) -> dict:
            "pipe_error": best["error_pipe"], "drag_error": best["error_drag"],
            "pipe_run": best["run_pipe"], "drag_run": best["run_drag"]}
     if model is not None and case_scene is not None:
-        from .scene import Scene
-        from .units import derive
+        from ..scene import Scene
+        from ..units import derive
 
         data = case_scene.model_dump(mode="json") if hasattr(case_scene, "model_dump") else copy.deepcopy(case_scene)
         dt_per_mm = float(best["dt_s_pipe"]) / float(best["dx_mm"])
@@ -1068,7 +1068,7 @@ def markdown_table(table: pd.DataFrame) -> str:
 def recommendation_markdown(rec: dict, model: dict | None = None) -> str:
     """``recommendation.md``: the targets, the cheapest setting meeting each, the joint setting."""
     out = ["# Accuracy against cost: recommendation", "",
-           f"Computed by `lbmpipe.study.recommend` from `accuracy_cost.csv`; cost = `{rec['cost']}` "
+           f"Computed by `lbmpipe.reproduction.study.recommend` from `accuracy_cost.csv`; cost = `{rec['cost']}` "
            + ("(CPU seconds of each run's process, start-up included; for the case runs the benchmark's sampled "
               "CPU time)" if rec["cost"] == "cpu_s" else "(wall seconds of the Snakemake benchmark, start-up included)")
            + ".", ""]

@@ -243,8 +243,8 @@ def _pack_files(data: dict, work_dir: Path) -> dict:
     """Replace a ``packed`` group without a file by a packing file made once per (shape, size,
     concentration, seed) in ``work_dir`` (cases share packings; the density ratio is not part of
     the packing)."""
-    from .particles import packed_group, write_packing
-    from .scene import Scene
+    from ..particles.placement import packed_group, write_packing
+    from ..scene import Scene
 
     groups = (data.get("particles") or {}).get("packed") or []
     if not groups or groups[0].get("file"):
@@ -263,7 +263,7 @@ def _pack_files(data: dict, work_dir: Path) -> dict:
 
 
 def _ke_reference(sim, params) -> float:
-    from . import observables as obs
+    from ..fluid import observables as obs
 
     g = sim.grid
     x, y, _ = g.positions()
@@ -289,7 +289,7 @@ def _kinetic_energy(sim) -> float:
 def _min_wall_clearance(sim) -> float:
     """Smallest signed gap (lattice units) between a particle and the pipe wall (negative: the
     particle reaches into the wall)."""
-    from .contact import contact_pipe
+    from ..particles.contact import contact_pipe
 
     ps = sim.particles
     if ps is None or ps.n == 0 or sim.grid.kind != "pipe":
@@ -308,13 +308,13 @@ def run_case(case: StabilityCase, dx_mm: float, steps: int, work_dir: Path | Non
     ``probe_every`` steps; returns the table row (module docstring)."""
     import numba
 
-    from .collisions import CollisionEffect
-    from .coupling import MassCorrection
-    from .effects import StreamCollide
-    from .guard import Unstable
-    from .scene import Scene, SceneError
-    from .solver import simulation_from_scene
-    from .units import derive
+    from ..particles.collisions import CollisionEffect
+    from ..particles.coupling import MassCorrection
+    from ..effects import StreamCollide
+    from ..guard import Unstable
+    from ..scene import Scene, SceneError
+    from ..solver import simulation_from_scene
+    from ..units import derive
 
     if threads:
         numba.set_num_threads(max(1, min(int(threads), numba.config.NUMBA_NUM_THREADS)))

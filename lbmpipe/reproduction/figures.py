@@ -1,6 +1,6 @@
 """Figures of the paper, regenerated from run outputs (physical units on every axis).
 
-Everything is drawn from the aggregated tables of :mod:`lbmpipe.statistics`
+Everything is drawn from the aggregated tables of :mod:`lbmpipe.reproduction.statistics`
 (``results/<fid>/tables/*.csv``) and the case directories; :func:`make_figures` is the single
 entry point. Cases are picked by their metadata columns (shape, size, concentration, Reynolds
 number, collisions), never by parsing names. A case the figure needs but which is missing from

@@ -12,7 +12,7 @@ minimum-image distances), orientations uniform on SO(3) (``rigid.random_quaterni
 candidate rejected if its bounding sphere overlaps one already placed (explicit bodies included).
 Bounding spheres make this a dilute-suspension tool: an 8 mm cube's bounding sphere has 2.7 times
 its volume, so random addition of bounding spheres jams near 10 % for cubes. Dense packings (the
-paper's 30 % and 50 %) belong to ``lbmpipe.packing``. When the requested number does not fit in
+paper's 30 % and 50 %) belong to ``lbmpipe.particles.packing``. When the requested number does not fit in
 ``MAX_ATTEMPTS`` candidates, placement fails with a ``SceneError`` naming the number reached; it
 never returns fewer particles.
 """
@@ -28,7 +28,7 @@ import pandas as pd
 from numba import njit
 
 from .rigid import Bodies, random_quaternions, rotate_inv
-from .scene import SHAPE_SIZES, SceneError
+from ..scene import SHAPE_SIZES, SceneError
 from .shapes import SHAPE_NAMES, bounding_radius, make_shape, volume
 
 MAX_ATTEMPTS = 200_000
@@ -167,7 +167,7 @@ def bodies_from_scene(scene, params, info: dict | None = None) -> tuple[Bodies, 
                 field,
                 f"random placement of non-overlapping bounding spheres fitted only {placed} of {n} {g.shape}s "
                 f"(volume fraction {placed * vp / v_dom:.3g}) in {MAX_ATTEMPTS} attempts",
-                "lower the count or concentration; dense packings need lbmpipe.packing (bounding spheres of a "
+                "lower the count or concentration; dense packings need lbmpipe.particles.packing (bounding spheres of a "
                 "random placement waste most of the volume)")
         q = random_quaternions(n, rng)
         parts.append(Bodies.make(kind, h, g.density_ratio, x, q=q, fixed=np.full(n, g.fixed)))
@@ -191,7 +191,7 @@ PACKING_COLUMNS = ("id", "x_mm", "y_mm", "z_mm", "qw", "qx", "qy", "qz")
 
 def packed_group(g, scene) -> tuple[np.ndarray, np.ndarray, dict]:
     """Centres (mm, pipe axis at x = y = 0) and quaternions of a ``PackedParticles`` group, read
-    from ``g.file`` when given, else packed now (``lbmpipe.packing.pack``, in mm, so the packing
+    from ``g.file`` when given, else packed now (``lbmpipe.particles.packing.pack``, in mm, so the packing
     does not depend on dx). Returns ``(x_mm (N, 3), q (N, 4), info)``; info holds the target and
     achieved concentrations, the count and the packing time. Raises ``SceneError`` (naming the
     highest concentration reached) when the target cannot be packed or the file does not match."""

@@ -21,7 +21,7 @@ from pathlib import Path
 
 import yaml
 
-from .scene import Scene, SceneError
+from ..scene import Scene, SceneError
 
 PIPE = {"kind": "pipe", "diameter_mm": 50.0, "length_mm": 100.0}
 #: NOTES.md: Q = 1.577e-4 m^3/s at Re 9.4 ("LF"), 3.154e-4 m^3/s at Re 26 ("HF").
@@ -97,13 +97,13 @@ def packing_case(config: dict, pid: str) -> tuple[str, dict]:
 
 
 def pack_case(config: dict, pid: str, out_csv: Path, out_json: Path) -> dict:
-    """Make packing ``pid`` (in mm; ``lbmpipe.packing``) and write it as CSV plus a JSON record
+    """Make packing ``pid`` (in mm; ``lbmpipe.particles.packing``) and write it as CSV plus a JSON record
     (``status`` packed | unpackable, target and achieved concentration, seconds, message).
 
     An unreachable target is a result, not a failure: the record says ``unpackable`` with the
     highest concentration reached, the CSV holds only its header, and the cases that use it are
     reported as not packable instead of stopping the pipeline."""
-    from .particles import PACKING_COLUMNS, packed_group, write_packing
+    from ..particles.placement import PACKING_COLUMNS, packed_group, write_packing
 
     name, case = packing_case(config, pid)
     fid_name = next(iter(config["fidelities"]))
@@ -115,8 +115,8 @@ def pack_case(config: dict, pid: str, out_csv: Path, out_json: Path) -> dict:
     try:
         x, q, info = packed_group(group, scene)
     except SceneError as exc:
-        from .packing import count_for_concentration
-        from .shapes import make_shape
+        from ..particles.packing import count_for_concentration
+        from ..particles.shapes import make_shape
 
         size = {k.removesuffix("_mm"): getattr(group, k) for k in ("diameter_mm", "length_mm", "edge_mm")
                 if getattr(group, k) is not None}
@@ -139,7 +139,7 @@ def write_unpackable(case_dir: Path, case_name: str, packing_info: dict) -> None
     figures list the case as not packable."""
     import pandas as pd
 
-    from .particles import PARQUET_COLUMNS, STATIC_COLUMNS
+    from ..particles.placement import PARQUET_COLUMNS, STATIC_COLUMNS
 
     case_dir = Path(case_dir)
     case_dir.mkdir(parents=True, exist_ok=True)
@@ -160,7 +160,7 @@ def write_unpackable(case_dir: Path, case_name: str, packing_info: dict) -> None
 def estimate_minutes(config: dict, fidelity_name: str, case_name: str) -> int:
     """Wall-time estimate of one case (``lbmpipe.cost``, with a factor for particle work), in
     whole minutes, for the cluster profile's ``runtime`` resource."""
-    from .units import derive
+    from ..units import derive
 
     fid = config["fidelities"][fidelity_name]
     case = config["cases"][case_name]
@@ -198,8 +198,8 @@ def simulate_case(scene_path: Path, packing_json: Path | None, out_dir: Path, th
                   checkpoint: Path | None = None) -> dict:
     """Run one case of the pipeline: the scene's solver run, or, when its packing could not be
     made, the ``unpackable`` record (``write_unpackable``). Returns the summary."""
-    from .scene import load_scene
-    from .units import derive
+    from ..scene import load_scene
+    from ..units import derive
 
     out_dir = Path(out_dir)
     if packing_json is not None:
@@ -210,7 +210,7 @@ def simulate_case(scene_path: Path, packing_json: Path | None, out_dir: Path, th
     import numba
 
     numba.set_num_threads(max(1, min(int(threads), numba.config.NUMBA_NUM_THREADS)))
-    from .solver import run_scene
+    from ..solver import run_scene
 
     scene = load_scene(scene_path)
     kwargs = {"checkpoint": checkpoint} if checkpoint is not None else {}

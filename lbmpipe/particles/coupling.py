@@ -1,6 +1,6 @@
 """Rigid particles on the lattice, coupled both ways to the fluid: Ladd's moving bounce-back,
 Eqs. (8)-(12), with an implicit particle-velocity update, and the rigid-body motion of
-Eqs. (13)-(15) (``lbmpipe.rigid``).
+Eqs. (13)-(15) (``lbmpipe.particles.rigid``).
 
 Everything here is in lattice units (dx = dt = 1, reference density ``rho0 = 1``).
 
@@ -172,9 +172,9 @@ from numba import njit, prange, types
 from numba.core import cgutils
 from numba.extending import intrinsic
 
-from . import effects as fx
-from .boundaries import plane_buffer
-from .observables import ordered_sum
+from .. import effects as fx
+from ..fluid.boundaries import plane_buffer
+from ..fluid.observables import ordered_sum
 from .rigid import Bodies, drift_arrays, omega_lab_arrays, quat_to_matrix
 from .shapes import CYLINDER, SPHERE, bounding_radius, volume
 

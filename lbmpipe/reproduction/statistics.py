@@ -125,7 +125,7 @@ def integrated_autocorrelation_time(series: np.ndarray, dt: float = 1.0, c: floa
 
 def rotation_matrices(q: np.ndarray) -> np.ndarray:
     """Rotation matrices ``A`` (N, 3, 3), body -> lab (Eq. (20)), of unit quaternions
-    ``q = (w, x, y, z)`` (N, 4); same convention as ``lbmpipe.rigid.quat_to_matrix``."""
+    ``q = (w, x, y, z)`` (N, 4); same convention as ``lbmpipe.particles.rigid.quat_to_matrix``."""
     q = np.asarray(q, dtype=float).reshape(-1, 4)
     q = q / np.linalg.norm(q, axis=1, keepdims=True)
     w, x, y, z = q.T

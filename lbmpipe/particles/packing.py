@@ -14,7 +14,7 @@ Method: random start, then overlap removal (a force-biased / position-based rela
    letting the wall push them in piles them up against the wall: at 30 % of 16 mm cylinders only
    6 % of the centres ended in the inner half of the reachable area.)
 2. Relaxation sweeps (Gauss-Seidel, in a numba kernel): every overlapping pair (and body-wall
-   contact) from ``lbmpipe.contact`` (GJK/EPA, exact for separated cylinder pairs: the code the
+   contact) from ``lbmpipe.particles.contact`` (GJK/EPA, exact for separated cylinder pairs: the code the
    collision model uses) is pushed apart
    along its contact normal to the gap ``+push`` (a small fraction of the size), split by the
    generalised inverse masses ``w_i = 1/m + (l_i x p) . J_i^-1 (l_i x p)`` (unit mass, shape

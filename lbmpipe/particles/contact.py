@@ -24,7 +24,7 @@ Narrow phase (``body_contact``)
   centre is inside X;
 - general: GJK (Gilbert-Johnson-Keerthi, closest point of the Minkowski difference
   ``D = A - B`` to the origin, simplex sub-problems by Voronoi regions as in Ericson,
-  *Real-Time Collision Detection*, 5.1) on the support functions of ``lbmpipe.shapes``; if the
+  *Real-Time Collision Detection*, 5.1) on the support functions of ``lbmpipe.particles.shapes``; if the
   bodies overlap, EPA (expanding polytope) gives the penetration depth and normal, i.e. the
   smallest translation of body 2 that separates them.
 - signed gap: ``+distance`` when separated, ``-depth`` when overlapping. Accuracy: GJK stops when

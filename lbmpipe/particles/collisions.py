@@ -87,7 +87,7 @@ from functools import cached_property
 import numpy as np
 from numba import njit, prange
 
-from .effects import Effect
+from ..effects import Effect
 from .contact import (_WS_HINT, _WS_WON, WS_SIZE, _support3, _ws_rows, bodies_overlap_ws, body_contact_ws,
                       bounding_radii, list_displacement, listed_slots, neighbour_list, new_scratch, pipe_wall_contact,
                       plane_wall_contact)
@@ -166,7 +166,7 @@ class CollisionParams:
     - ``speculative``: also treat as contacts the pairs that would overlap after a free step of
       ``dt`` at the current velocities (module docstring).
     - ``overlap_tol``: largest overlap left after the call (the stated bound).
-    - ``manifold_tol``: flatness tolerance of the contact-patch centroid (``lbmpipe.contact``).
+    - ``manifold_tol``: flatness tolerance of the contact-patch centroid (``lbmpipe.particles.contact``).
     - ``skin``: extra broad-phase margin; also the displacement budget of the projection before
       the pair list is rebuilt.
     - ``max_sweeps``, ``max_projection_iters``: caps of the Gauss-Seidel loops.
@@ -204,7 +204,7 @@ class CollisionParams:
 
 class NeighbourList:
     """The Verlet list of the pair search, kept from one call of ``resolve_collisions`` to the
-    next (``lbmpipe.contact.neighbour_list``; the kernel rebuilds it when a body has moved too
+    next (``lbmpipe.particles.contact.neighbour_list``; the kernel rebuilds it when a body has moved too
     far). The pairs taken from it are those of the cell scan, in its order, so a fresh list (a
     restart from a checkpoint) changes no result."""
 
@@ -1366,7 +1366,7 @@ def _refuse(status: int, bodies: Bodies, params: CollisionParams, lo, hi, step: 
     # The geometry fits; only the speculative reach of a body moving many lattice spacings per
     # step does not. No physical suspension does that: it is a blown-up run, so report it as one
     # (the guard's status 'unstable') rather than as a bad domain.
-    from .guard import Unstable
+    from ..guard import Unstable
     speed = np.linalg.norm(bodies.v, axis=1) + np.linalg.norm(bodies.wb, axis=1) * rb
     k = int(np.argmax(np.where(~bodies.fixed, speed, -1.0)))
     raise Unstable(f"particle speed {speed[k]:.3g} lattice units per step (translation plus rotation at the "

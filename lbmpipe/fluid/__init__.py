@@ -1,0 +1,2 @@
+"""The lattice Boltzmann fluid: lattices, the generated stream-and-collide kernels,
+wall boundaries and the observables of the populations. Depends on nothing else in lbmpipe."""
