@@ -24,8 +24,6 @@ if FIDELITY not in config["fidelities"]:
 CASES = sorted(config["cases"])
 FLOW_CASES = [c for c in CASES if config["cases"][c].get("particles") is None]
 PARTICLE_CASES = [c for c in CASES if c not in FLOW_CASES]
-# The interpreter running snakemake has lbmpipe installed, whether or not its venv is activated.
-LBMPIPE = f"{sys.executable} -m lbmpipe"
 
 
 # Inputs the document reads beyond figures and claims (the stability table, the study), as

@@ -40,15 +40,14 @@ from _common import (  # noqa: E402
     set_threads,
 )
 
-from lbmpipe.fluid import boundaries
-
-from lbmpipe import effects# noqa: E402
+from lbmpipe import effects  # noqa: E402
+from lbmpipe.fluid import boundaries  # noqa: E402
 from lbmpipe.fluid.lattice import get_lattice  # noqa: E402
 from lbmpipe.solver import Simulation  # noqa: E402
+from lbmpipe.units import trt_omega_minus  # noqa: E402
 
 LATTICE = "D3Q15"
 OMEGA = 1.0 / 0.8  # tau = 0.8, the value the brief fixes for the comparison
-TRT_MAGIC = 3.0 / 16.0
 ITEMSIZE = {"float64": 8, "float32": 4}
 MARK = {"quiet": "", "shared": "~", "disturbed": "*"}
 
@@ -59,10 +58,6 @@ def bytes_per_node(q: int, precision: str) -> int:
     return 2 * q * ITEMSIZE[precision]
 
 
-def trt_omega_minus(omega_plus: float, magic: float = TRT_MAGIC) -> float:
-    return 1.0 / (magic / (1.0 / omega_plus - 0.5) + 0.5)
-
-
 # --------------------------------------------------------------------------------------------
 # lbmpipe contenders
 
@@ -71,8 +66,8 @@ def lbmpipe_box(n: int, threads: int, collision: str, precision: str) -> tuple[S
     set_threads(threads)  # Simulation sizes its work chunks from the current thread count
     lat = get_lattice(LATTICE)
     grid = boundaries.box_grid(lat, (n, n, n), (False, False, False))
-    om_m = trt_omega_minus(OMEGA) if collision == "trt" else None
-    sim = Simulation(grid, collision=collision, omega=OMEGA, omega_minus=om_m, precision=precision)
+    om_m = trt_omega_minus(1.0 / OMEGA) if collision == "trt" else None
+    sim = Simulation.build(grid, collision=collision, omega=OMEGA, omega_minus=om_m, precision=precision)
     return sim, n**3
 
 
@@ -81,7 +76,7 @@ def lbmpipe_pipe(n_d: int, n_len: int, threads: int, precision: str = "float64")
     lat = get_lattice(LATTICE)
     grid = boundaries.pipe_grid(lat, n_d, n_len)
     walls = effects.wall_effects(grid, "bounce_back", {})
-    sim = Simulation(grid, collision="bgk", omega=OMEGA, precision=precision, extra_effects=walls)
+    sim = Simulation.build(grid, collision="bgk", omega=OMEGA, precision=precision, extra_effects=walls)
     return sim, grid.n_fluid
 
 
@@ -241,7 +236,7 @@ def validate_lbmpy(kernels: dict, shape=(12, 10, 8), steps: int = 4) -> dict:
     for (precision, threads, simd), fn in kernels.items():
         set_threads(threads)
         grid = boundaries.box_grid(lat, shape, (False, False, False))
-        sim = Simulation(grid, collision="bgk", omega=OMEGA, precision=precision)
+        sim = Simulation.build(grid, collision="bgk", omega=OMEGA, precision=precision)
         sim.set_equilibrium(rho, u)
         start = LbmpyBox(shape, precision)
         perm = [int(np.nonzero((lat.e == d).all(axis=1))[0][0]) for d in start.dirs]

@@ -2,9 +2,8 @@
 
 ``DEFAULT_MLUPS`` (million lattice-node updates per second) is the whole fluid-only solver step
 on ``REFERENCE_THREADS`` threads, calibrated from ``benchmarks/fluid.py`` (row "lbmpipe BGK +
-bounce-back wall", the paper's pipe 50 x 50 x 100, float64, 2 threads: median 154 MLUPS) on
-2026-11-22, Intel Xeon (Sapphire Rapids, KVM guest, 2 cores, AVX-512), numba 0.68, kernel
-generator version 5, on a machine shared with other jobs; rounded down to 150. Scenes with a
+bounce-back wall", the paper's pipe 50 x 50 x 100, float64; the calibration run is recorded in
+benchmarks/README.md), rounded down. Scenes with a
 body force and the flux sum, interpolated walls or particles do more work per step and run
 slower. Throughput is assumed to scale linearly with the thread count, which over-estimates it
 once memory bandwidth saturates: treat the estimate as a lower bound on wall time for many

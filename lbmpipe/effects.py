@@ -13,10 +13,16 @@ Each effect runs in one phase of the step:
 * ``fluid``: the sweep itself, ``sim.f -> sim.f_next``;
 * ``post``: after the sweep (controllers, particle dynamics, collisions).
 
-The simulation times every effect separately; the summary reports seconds per effect.
+``assemble`` decides everything about the step once: the kernel (lattice, collision operator,
+forcing, flux sum, precision, density floor), the initial force density, and the effects of each
+phase in order. The simulation times every effect separately; the summary reports seconds per
+effect. An effect with tallies of its own (mass added by the density floor, collision totals,
+mass correction) reports them through ``record()`` under its ``record_key``.
 """
 
 from __future__ import annotations
+
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -29,9 +35,15 @@ class Effect:
 
     name = "effect"
     phase = "pre"
+    #: key of the effect's tallies in ``Simulation.records()`` (None: it keeps none)
+    record_key: str | None = None
 
     def __call__(self, sim) -> None:  # pragma: no cover - interface
         raise NotImplementedError
+
+    def record(self) -> dict | None:
+        """The effect's tallies since the start of the run (lattice units), or None."""
+        return None
 
     def __repr__(self) -> str:
         return f"<{self.phase}: {self.name}>"
@@ -52,6 +64,7 @@ class StreamCollide(Effect):
     fluid never reads them), so the tally bounds the fluid's share from above."""
 
     phase = "fluid"
+    record_key = "density_floor"
 
     def __init__(self, spec: KernelSpec, rho_min: float = 0.0):
         self.spec = spec
@@ -68,6 +81,12 @@ class StreamCollide(Effect):
             g.cols_x, g.cols_y, g.xm, g.xp, g.ym, g.yp, g.z0, g.z1, g.nzw,
             sim.omega, sim.omega_minus, fx, fy, fz, sim.n_chunks, self.rho_min, self.tally,
         )
+
+    def record(self) -> dict | None:
+        """With the density floor: ``rho_min``, the mass added and the node updates floored."""
+        if not self.spec.floor:
+            return None
+        return {"rho_min": self.rho_min, "mass_added": float(self.tally[0]), "node_updates": float(self.tally[1])}
 
 
 class WallBounceBack(Effect):
@@ -186,3 +205,76 @@ def wall_effects(grid: bnd.Grid, scheme: str, wall_velocities: dict[str, tuple])
 
 def _subset(links: bnd.Links, sel: np.ndarray) -> bnd.Links:
     return bnd.Links(**{k: getattr(links, k)[sel] for k in links.__dataclass_fields__})
+
+
+def fluid_spec(lattice: str, collision: str, precision: str, force, flux: bool, density_floor: float | None) -> KernelSpec:
+    """The sweep's kernel: Guo forcing when there is a force or a controlled flux, the flux sum for
+    the controller, the density floor when one is asked for."""
+    forcing = bool(np.any(np.asarray(force) != 0.0)) or flux
+    return KernelSpec(lattice, collision, forcing, flux, precision, bool(density_floor))
+
+
+@dataclass
+class Step:
+    """A scene's time step in its named phases, in the order they run.
+
+    ``pre``: ``walls`` then ``particle_fills`` (ghost fills and momentum exchange); ``fluid``: the
+    sweep; ``post``: ``flux_correction`` (needs the sweep's owner map), ``control`` (the flow-rate
+    controller, reading the corrected flux), ``collisions`` (on the updated particle velocities,
+    before the drift), ``motion`` (drift, then the mass correction: changes the owner map).
+    ``force`` is the initial force density (lattice units)."""
+
+    fluid: StreamCollide
+    force: np.ndarray
+    walls: list[Effect] = field(default_factory=list)
+    particle_fills: list[Effect] = field(default_factory=list)
+    flux_correction: list[Effect] = field(default_factory=list)
+    control: list[Effect] = field(default_factory=list)
+    collisions: list[Effect] = field(default_factory=list)
+    motion: list[Effect] = field(default_factory=list)
+
+    @property
+    def effects(self) -> list[Effect]:
+        return (self.walls + self.particle_fills + [self.fluid] + self.flux_correction + self.control
+                + self.collisions + self.motion)
+
+
+def collision_effect(scene, params, system):
+    """The collision effect the scene asks for (``None`` without free particles or with
+    ``particles.collisions.enabled: false``): the particles' domain in lattice units."""
+    if system is None or not len(system.free_ids) or not scene.particles.collisions.enabled:
+        return None
+    from .particles.collisions import CollisionEffect, CollisionParams, Domain
+    from .particles.placement import domain_geometry
+
+    lo, hi, periodic, radius = domain_geometry(scene, params)
+    dom = Domain.pipe(radius, hi[2] - lo[2], z0=lo[2]) if radius > 0 else Domain.box(lo, hi, periodic)
+    c = scene.particles.collisions
+    return CollisionEffect(system, dom, CollisionParams(restitution=c.restitution, contact_gap=c.contact_gap_dx,
+                                                        overlap_tol=c.overlap_tol_dx), pairs=c.pairs)
+
+
+def assemble(scene, params, grid: bnd.Grid, system=None) -> Step:
+    """The time step ``scene`` declares on ``grid`` with the particle system ``system``
+    (``coupling.ParticleSystem`` or None): exactly its effects, each decided here once."""
+    num = scene.numerics
+    walls = wall_effects(grid, num.wall, dict(params.wall_velocities_lu))
+    flux = scene.driving.kind == "flow_rate"
+    step = Step(fluid=None, force=np.array(params.accel_lu, dtype=np.float64), walls=walls)  # force density = rho_0 g
+    if system is not None:
+        from .particles.coupling import particle_effects
+
+        bouzidi = [e.links for e in walls if isinstance(e, WallBouzidi)]
+        step.particle_fills, step.flux_correction, step.motion = particle_effects(
+            system, flux_control=flux, bouzidi_links=bouzidi[0] if bouzidi else None, wall_links=[e.links for e in walls])
+    if flux:
+        ctl = FlowRateControl(params.flow_rate_lu, grid.radius, params.nu_lu, grid.shape[2], grid.n_fluid)
+        step.control = [ctl]
+        step.force = np.array([0.0, 0.0, ctl.f_ref])
+    collide = collision_effect(scene, params, system)
+    step.collisions = [collide] if collide is not None else []
+    # the density floor only where free particles can squeeze films
+    floor = num.density_floor if system is not None and len(system.free_ids) else None
+    spec = fluid_spec(grid.lattice.name, num.collision, num.precision, step.force, flux, floor)
+    step.fluid = StreamCollide(spec, floor if spec.floor else 0.0)
+    return step

@@ -40,6 +40,8 @@ import numba
 import numpy as np
 from numba import njit, prange
 
+from .errors import Unstable  # noqa: F401  (raised here; guard.Unstable is the name callers used)
+
 #: steps between checks when the scene does not say (cost < 1 % of the step: benchmarks/guard.py)
 DEFAULT_EVERY = 50
 
@@ -112,15 +114,6 @@ def _scan(f, ex, ey, ez, cols_x, cols_y, z0, z1, owner, n_chunks, out):
         out[c, _IRMAX] = irmax
 
 
-class Unstable(RuntimeError):
-    """A failed guard check: ``what`` failed, ``where`` (node or particle), at ``step``, the likely
-    ``cause`` and a ``fix``. ``str()`` is the full one-paragraph message."""
-
-    def __init__(self, what: str, where: str, step: int, cause: str, fix: str):
-        self.what, self.where, self.step, self.cause, self.fix = what, where, int(step), cause, fix
-        super().__init__(f"unstable at step {self.step}: {what} at {where}. Likely cause: {cause}. Fix: {fix}.")
-
-
 @dataclass(frozen=True)
 class GuardLimits:
     """Bounds the guard enforces (lattice units)."""
@@ -168,10 +161,11 @@ class Guard:
         self.lo = np.zeros(3)
         self.hi = np.array(inner, dtype=np.float64)
         self.periodic = np.array(g.periodic)
-        self.collide = None
-        for eff in sim.effects:
-            if hasattr(eff, "totals") and hasattr(eff, "params") and hasattr(eff.params, "overlap_tol"):
-                self.collide = eff
+        self.collide = None  # the collision effect, whose running maximum overlap the guard bounds
+        if sim.particles is not None:
+            from .particles.collisions import CollisionEffect
+
+            self.collide = sim.effect(CollisionEffect)
         self.checks = 0
         self.seconds = 0.0
         self.last: dict = {}

@@ -21,7 +21,8 @@ import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 from pydantic_core import PydanticUndefined
 
-from lbmpipe.units import DEFAULT_MACH_LIMIT
+from lbmpipe.errors import SceneError  # noqa: F401  (scene.SceneError is the name callers use)
+from lbmpipe.units import DEFAULT_MACH_LIMIT, MAGIC_EXACT_WALL
 
 Side = Literal["x-", "x+", "y-", "y+", "z-", "z+"]
 Vec3 = tuple[float, float, float]
@@ -29,37 +30,6 @@ AXES = ("x", "y", "z")
 #: Extents must be integer multiples of dx within this relative tolerance.
 MULTIPLE_RTOL = 1e-6
 DOCS_PATH = "docs/scene.md"
-
-
-class SceneError(ValueError):
-    """A bad scene: ``field`` (dotted path), what is wrong, and how to fix it.
-
-    ``str(err)`` is ``"scene error in <field>: <message>. Fix: <fix>"``. When several problems are
-    found at once, ``errors`` lists them all (the first one also fills field/message/fix) and
-    ``str(err)`` has one such line per problem.
-    """
-
-    def __init__(self, field: str, message: str, fix: str, errors: list["SceneError"] | None = None):
-        self.field = field
-        self.message = message.rstrip(".")
-        self.fix = fix.rstrip(".")
-        self.errors: list[SceneError] = list(errors) if errors else [self]
-        super().__init__(str(self))
-
-    def line(self) -> str:
-        return f"scene error in {self.field}: {self.message}. Fix: {self.fix}"
-
-    def __str__(self) -> str:
-        return "\n".join(e.line() for e in self.errors)
-
-    def __reduce__(self):
-        return (SceneError, (self.field, self.message, self.fix, self.errors if len(self.errors) > 1 else None))
-
-    @classmethod
-    def combine(cls, errors: list["SceneError"]) -> "SceneError":
-        flat = [e for err in errors for e in err.errors]
-        first = flat[0]
-        return cls(first.field, first.message, first.fix, flat if len(flat) > 1 else None)
 
 
 class _Model(BaseModel):
@@ -144,7 +114,7 @@ class Numerics(_Model):
     lattice: Literal["D3Q15", "D3Q19", "D3Q27"] = Field("D3Q15", description="Velocity set; D3Q15 is the paper's (Table 1, Eq. (7)).")
     collision: Literal["bgk", "trt"] = Field("bgk", description="`bgk` (single relaxation time, Eq. (2), the paper's) or `trt` (two relaxation times).")
     trt_magic: float = Field(
-        0.1875, gt=0,
+        MAGIC_EXACT_WALL, gt=0,
         description="TRT magic parameter Lambda = (tau_+ - 1/2)(tau_- - 1/2); 3/16 puts bounce-back walls exactly half-way "
         "for Poiseuille flow. Ignored by bgk.",
     )

@@ -1,18 +1,22 @@
-"""The simulation: state, the time step assembled from effects, and a scene's run with its outputs.
+"""The simulation: state, the time step assembled from effects, the run loop, and a scene's run
+with its outputs.
 
 State lives in lattice units. ``f`` holds the post-collision populations of the current time
 (Eq. (2) applied), ``f_next`` receives the next ones; the two swap every step. The step is
 
-1. ``pre`` effects fill the ghost slots of solid nodes (walls, later particles) in ``f``;
+1. ``pre`` effects fill the ghost slots of solid nodes (walls, particles) in ``f``;
 2. the ``fluid`` effect streams and collides ``f -> f_next`` (one generated kernel);
-3. ``post`` effects (flow-rate control, later rigid-body motion and collisions);
+3. ``post`` effects (flux correction, flow-rate control, collisions, rigid-body motion);
 4. swap;
 5. every ``guard.every`` steps, the run-time guard (``lbmpipe.guard``): NaN/Inf, lattice speed,
    density range, particles inside and overlaps within the collision bound; a failure raises
-   ``guard.Unstable``, which ``run_scene`` reports as status ``unstable``.
+   ``errors.Unstable``, which the run loop reports as status ``unstable``.
 
-``run_scene`` can write checkpoints (``lbmpipe.checkpoint``) every few minutes of wall time and at
-an interrupt, and resumes from one: the resumed run is bit-identical to an uninterrupted one.
+``effects.assemble`` decides the effects; ``run_loop`` steps a simulation and hands each sample to
+its reporters (flow-rate series, profile average, particle samples, progress, checkpoints), which
+write the outputs after it. ``run_scene`` (the CLI and the pipeline) and the stability suite share
+the loop. Checkpoints (``lbmpipe.checkpoint``) are written every few minutes of wall time and at an
+interrupt; a resumed run is bit-identical to an uninterrupted one.
 """
 
 from __future__ import annotations
@@ -20,15 +24,17 @@ from __future__ import annotations
 import math
 import signal
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 import numba
 import numpy as np
 
-from .fluid import boundaries as bnd
 from . import effects as fx
+from .errors import Unstable
+from .fluid import boundaries as bnd
 from .fluid import observables as obs
-from .fluid.kernels import KernelSpec, dtype_of
+from .fluid.kernels import dtype_of
 from .fluid.lattice import get_lattice
 
 #: column chunks of the fluid sweep: 4 per thread up to 16 threads
@@ -36,30 +42,27 @@ SWEEP_CHUNKS = 64
 
 
 class Simulation:
-    """A lattice Boltzmann run on a grid with an ordered list of effects."""
+    """A lattice Boltzmann run on a grid with the finished, ordered list of its effects
+    (``effects.assemble``): ``pre`` effects, the one ``fluid`` sweep, ``post`` effects."""
 
-    def __init__(self, grid: bnd.Grid, *, collision: str = "bgk", omega: float, omega_minus: float | None = None,
-                 precision: str = "float64", force=(0.0, 0.0, 0.0), flux: bool = False,
-                 extra_effects: list[fx.Effect] | None = None, density_floor: float | None = None):
+    def __init__(self, grid: bnd.Grid, effects: list[fx.Effect], *, omega: float, omega_minus: float | None = None,
+                 force=(0.0, 0.0, 0.0)):
+        phases = [e.phase for e in effects]
+        if phases.count("fluid") != 1 or phases != sorted(phases, key=("pre", "fluid", "post").index):
+            raise ValueError(f"effects must be pre..., one fluid sweep, post... in that order, got {effects}")
         self.grid = grid
         self.lattice = grid.lattice
         self.omega = float(omega)
         self.omega_minus = float(omega if omega_minus is None else omega_minus)
         self.force = np.array(force, dtype=np.float64)
-        self.dtype = dtype_of(precision)
+        sweep = effects[phases.index("fluid")]
+        self.dtype = dtype_of(sweep.spec.precision)
         q = self.lattice.q
-        nx, ny, nz = grid.shape
         self.f = bnd.alloc_populations(q, grid, self.dtype)
         self.f_next = bnd.alloc_populations(q, grid, self.dtype)
         self.last_flux = 0.0
         self.step_count = 0
-        forcing = bool(np.any(self.force != 0.0)) or flux
-        floor = bool(density_floor)
-        spec = KernelSpec(self.lattice.name, collision, forcing, flux, precision, floor)
-        self.effects: list[fx.Effect] = []
-        self.effects += [e for e in (extra_effects or []) if e.phase == "pre"]
-        self.effects.append(fx.StreamCollide(spec, density_floor if floor else 0.0))
-        self.effects += [e for e in (extra_effects or []) if e.phase == "post"]
+        self.effects: list[fx.Effect] = list(effects)
         self.timers = {e.name: 0.0 for e in self.effects}
         # Chunks of columns balance the cores without per-column overhead. Their number must not
         # depend on the thread count: the flux is summed per chunk, and a run on 1 thread must
@@ -70,6 +73,18 @@ class Simulation:
         self.particles = None  # coupling.ParticleSystem when the scene has particles
         self.particle_static: list[dict] = []
         self.packing: dict = {}  # how a packed group was made (target/achieved concentration, ...)
+
+    @classmethod
+    def build(cls, grid: bnd.Grid, *, collision: str = "bgk", omega: float, omega_minus: float | None = None,
+              precision: str = "float64", force=(0.0, 0.0, 0.0), flux: bool = False,
+              extra_effects: list[fx.Effect] | None = None, density_floor: float | None = None) -> "Simulation":
+        """A simulation assembled by hand (tests, benchmarks): the sweep for ``collision`` and
+        ``precision`` between the ``pre`` and the ``post`` effects of ``extra_effects``."""
+        spec = fx.fluid_spec(grid.lattice.name, collision, precision, force, flux, density_floor)
+        extra = list(extra_effects or [])
+        effects = ([e for e in extra if e.phase == "pre"] + [fx.StreamCollide(spec, density_floor if spec.floor else 0.0)]
+                   + [e for e in extra if e.phase == "post"])
+        return cls(grid, effects, omega=omega, omega_minus=omega_minus, force=force)
 
     @property
     def f2(self) -> np.ndarray:
@@ -124,6 +139,15 @@ class Simulation:
                 return e
         return None
 
+    def records(self) -> dict[str, dict]:
+        """The effects' own tallies, by ``record_key`` (``Effect.record``)."""
+        out = {}
+        for e in self.effects:
+            rec = e.record() if e.record_key else None
+            if rec is not None:
+                out[e.record_key] = rec
+        return out
+
 
 def grid_from_scene(scene, params) -> bnd.Grid:
     lat = get_lattice(scene.numerics.lattice)
@@ -151,56 +175,13 @@ def particle_system_from_scene(scene, params, grid):
     return system, static
 
 
-def collision_effect(scene, params, system):
-    """The collision effect the scene asks for (``None`` without free particles or with
-    ``particles.collisions.enabled: false``): the particles' domain in lattice units."""
-    if system is None or not len(system.free_ids) or not scene.particles.collisions.enabled:
-        return None
-    from .particles.collisions import CollisionEffect, CollisionParams, Domain
-    from .particles.placement import domain_geometry
-
-    lo, hi, periodic, radius = domain_geometry(scene, params)
-    dom = Domain.pipe(radius, hi[2] - lo[2], z0=lo[2]) if radius > 0 else Domain.box(lo, hi, periodic)
-    c = scene.particles.collisions
-    return CollisionEffect(system, dom, CollisionParams(restitution=c.restitution, contact_gap=c.contact_gap_dx,
-                                                        overlap_tol=c.overlap_tol_dx), pairs=c.pairs)
-
-
 def simulation_from_scene(scene, params, guard: bool = True) -> Simulation:
-    """Assemble the simulation a scene declares: exactly its effects, and its initial state, with
-    the run-time guard (``lbmpipe.guard``) unless ``guard=False``.
-
-    With particles, the step is: wall fills, particle fills and velocity update (``coupling``),
-    sweep, then the flow-rate flux correction, the controller, the collisions and the particle
-    motion (in that order: the correction needs the owner map of the sweep, the collisions act on
-    the updated velocities before the drift, the motion changes the owner map)."""
+    """Assemble the simulation a scene declares: exactly its effects (``effects.assemble``), and
+    its initial state, with the run-time guard (``lbmpipe.guard``) unless ``guard=False``."""
     grid = grid_from_scene(scene, params)
-    num = scene.numerics
-    walls = fx.wall_effects(grid, num.wall, dict(params.wall_velocities_lu))
-    extra = list(walls)
     system, static = particle_system_from_scene(scene, params, grid)
-    flux = scene.driving.kind == "flow_rate"
-    after: list[fx.Effect] = []
-    if system is not None:
-        from .particles.coupling import particle_effects
-
-        bouzidi = [e.links for e in walls if isinstance(e, fx.WallBouzidi)]
-        pre, before, after = particle_effects(system, flux_control=flux, bouzidi_links=bouzidi[0] if bouzidi else None,
-                                              wall_links=[e.links for e in walls])
-        extra += pre + before
-    force = np.array(params.accel_lu, dtype=np.float64)  # force density = rho_0 g, rho_0 = 1
-    if flux:
-        ctl = fx.FlowRateControl(params.flow_rate_lu, grid.radius, params.nu_lu, grid.shape[2], grid.n_fluid)
-        extra.append(ctl)
-        force = np.array([0.0, 0.0, ctl.f_ref])
-    collide = collision_effect(scene, params, system)
-    if collide is not None:
-        extra.append(collide)
-    extra += after
-    # the density floor (effects.StreamCollide) only where free particles can squeeze films
-    floor = num.density_floor if system is not None and len(system.free_ids) else None
-    sim = Simulation(grid, collision=num.collision, omega=params.omega, omega_minus=params.omega_minus,
-                     precision=num.precision, force=force, flux=flux, extra_effects=extra, density_floor=floor)
+    step = fx.assemble(scene, params, grid, system)
+    sim = Simulation(grid, step.effects, omega=params.omega, omega_minus=params.omega_minus, force=step.force)
     sim.particles = system
     sim.particle_static = static
     sim.packing = getattr(system, "packing_info", {}) if system is not None else {}
@@ -219,12 +200,13 @@ def simulation_from_scene(scene, params, guard: bool = True) -> Simulation:
 class _Interrupt:
     """Turns SIGINT/SIGTERM into a flag checked between steps, so the state stays consistent."""
 
-    def __init__(self):
+    def __init__(self, enabled: bool = True):
         self.hit = False
+        self.enabled = enabled
         self._old = {}
 
     def __enter__(self):
-        for sig in (signal.SIGINT, signal.SIGTERM):
+        for sig in (signal.SIGINT, signal.SIGTERM) if self.enabled else ():
             try:
                 self._old[sig] = signal.signal(sig, self._handler)
             except ValueError:  # not the main thread
@@ -238,6 +220,302 @@ class _Interrupt:
         for sig, h in self._old.items():
             signal.signal(sig, h)
         return False
+
+
+class Sample:
+    """The state at a sample time, its moments computed once and only when a reporter asks."""
+
+    def __init__(self, sim: Simulation):
+        self.sim = sim
+        self.step = sim.step_count
+        self._moments = None
+
+    @property
+    def moments(self):
+        """``(rho, ux, uy, uz, fluid)``: the moments and the fluid mask now."""
+        if self._moments is None:
+            self._moments = (*self.sim.moments(), self.sim.fluid_mask())
+        return self._moments
+
+
+class Reporter:
+    """What runs beside the run loop without changing the state: sampling, averaging, checkpoints.
+
+    ``advanced`` after every stretch of steps, ``sample`` at every sample time (a message returned
+    ends the run as ``unstable``), ``between`` after a sample time that is not the last step (where
+    a checkpoint may be written), ``finish`` with the loop's status once it ends (inside the loop's
+    guard: it may raise ``Unstable``). Reporters that write outputs do so in ``write``, after."""
+
+    def advanced(self, sim: Simulation, steps: int) -> None:
+        pass
+
+    def sample(self, sim: Simulation, sample: Sample) -> str | None:
+        return None
+
+    def between(self, sim: Simulation) -> None:
+        pass
+
+    def finish(self, sim: Simulation, status: str) -> None:
+        pass
+
+
+@dataclass
+class Outcome:
+    """How a run loop ended: ``completed``, ``unstable`` (``error`` the guard's ``Unstable``, or
+    None for a non-finite sample) or ``interrupted``."""
+
+    status: str = "completed"
+    message: str = ""
+    error: Unstable | None = None
+
+
+def run_loop(sim: Simulation, n_steps: int, every: int, reporters=(), *, stop_at_step: int | None = None,
+             interruptible: bool = True) -> Outcome:
+    """Step ``sim`` to ``n_steps`` with a sample every ``every`` steps (and at the last step),
+    handing each sample to ``reporters`` in order. SIGINT/SIGTERM (when ``interruptible``) and
+    ``stop_at_step`` end the run as ``interrupted`` between steps, with the state consistent; an
+    ``Unstable`` raised by the guard, the collision step or a reporter ends it as ``unstable``."""
+    out = Outcome()
+    with _Interrupt(enabled=interruptible) as stop:
+        try:
+            while sim.step_count < n_steps:
+                chunk = min(every - sim.step_count % every, n_steps - sim.step_count)
+                if stop_at_step is not None and sim.step_count < stop_at_step:
+                    chunk = min(chunk, stop_at_step - sim.step_count)
+                sim.step(chunk)
+                for r in reporters:
+                    r.advanced(sim, chunk)
+                if sim.step_count % every == 0 or sim.step_count == n_steps:
+                    sample = Sample(sim)
+                    bad = next((m for m in (r.sample(sim, sample) for r in reporters) if m), None)
+                    if bad:
+                        out.status, out.message = "unstable", bad
+                        break
+                if stop.hit or (stop_at_step is not None and stop_at_step <= sim.step_count < n_steps):
+                    out.status, out.message = "interrupted", f"interrupted at step {sim.step_count}"
+                    break
+                if sim.step_count < n_steps:
+                    for r in reporters:
+                        r.between(sim)
+            for r in reporters:
+                r.finish(sim, out.status)
+        except Unstable as exc:
+            out.status, out.message, out.error = "unstable", str(exc), exc
+    return out
+
+
+class FiniteState(Reporter):
+    """Ends the run at a sample whose fluid density or particle velocity is not finite."""
+
+    def sample(self, sim, sample):
+        rho, _, _, _, fluid = sample.moments
+        if not np.isfinite(rho[fluid]).all():
+            return f"non-finite density at step {sim.step_count}"
+        ps = sim.particles
+        if ps is not None and not np.isfinite(ps.bodies.v).all():
+            return f"non-finite particle velocity at step {sim.step_count}"
+        return None
+
+
+class FlowRateSeries(Reporter):
+    """``flow_rate.csv``: per sample the flow rate (the mixture's: fluid plus particle volume flux),
+    the driving force density and the largest density deviation."""
+
+    def __init__(self):
+        self.rows: list[tuple[int, float, float, float]] = []
+
+    def sample(self, sim, sample):
+        rho, _, _, uz, fluid = sample.moments
+        jz = float(uz[fluid].sum())
+        ps = sim.particles
+        if ps is not None:
+            jz += float(np.dot(ps.nown, ps.bodies.v[:, 2]))  # mixture: particle volume flux
+        q_lu = jz / sim.grid.shape[2]
+        self.rows.append((sim.step_count, q_lu, float(sim.force[2]), float(np.abs(rho[fluid] - 1).max())))
+        return None
+
+    def write(self, out_dir, summary, files, scene, units) -> None:
+        from . import outputs
+
+        files["flow_rate.csv"] = outputs.write_flow_rate(out_dir, self.rows, units, scene)
+
+
+class ParticleSamples(Reporter):
+    """``particles.parquet`` and ``particles_static.csv``, and the summary's particle entries (the
+    effects' tallies: density floor, collisions)."""
+
+    def __init__(self, sim, units):
+        from .particles import placement
+
+        self.recorder = placement.ParticleRecorder(sim.particles, units)
+
+    def sample(self, sim, sample):
+        self.recorder.sample(sim.step_count)
+        return None
+
+    def write(self, out_dir, summary, files, scene, sim, mass0) -> None:
+        from .particles import placement
+
+        ps, grid = sim.particles, sim.grid
+        records = sim.records()
+        summary["particles"] = {
+            "count": ps.n, "fixed": int(len(ps.fixed_ids)),
+            "volume_fraction": float(ps.vol.sum() / max(float(np.count_nonzero(grid.fluid)), 1.0)),
+            "links": int(ps.lcnt.sum()),
+            "collisions": "collisions" in records,
+            **sim.packing,
+        }
+        floor = records.get("density_floor")
+        if floor is not None:
+            summary["density_floor"] = {
+                "rho_min": floor["rho_min"], "mass_added_rel": floor["mass_added"] / max(mass0, 1e-300),
+                "node_updates": int(floor["node_updates"]),
+                "node_updates_per_step": floor["node_updates"] / max(sim.step_count, 1)}
+        summary["collisions"] = records.get("collisions") or {
+            "enabled": False, "reason": "switched off by the scene" if not scene.particles.collisions.enabled
+            else "no free particles"}
+        files[placement.write_static(out_dir, sim.particle_static)] = True
+        files[self.recorder.write(out_dir)] = True
+
+
+class ProfileAccumulator(Reporter):
+    """``profile.csv`` (pipe): the time-weighted fluid mean of u_z per column after spin-up, against
+    radius, with the Poiseuille profile of the target flow rate; also the mean flow rate over the
+    averaged samples."""
+
+    def __init__(self, grid, spinup: int):
+        self.grid = grid
+        self.spinup = spinup
+        self.uz_sum = np.zeros(grid.shape)
+        self.uz_cnt = np.zeros(grid.shape)
+        self.n_avg = 0
+
+    def sample(self, sim, sample):
+        if sim.step_count > self.spinup:
+            _, _, _, uz, fluid = sample.moments
+            self.uz_sum += np.where(fluid, uz, 0.0)
+            self.uz_cnt += fluid
+            self.n_avg += 1
+        return None
+
+    def write(self, out_dir, summary, files, scene, params, series) -> None:
+        from . import outputs
+
+        grid, units = self.grid, params.units
+        if grid.kind != "pipe" or self.n_avg == 0:
+            return
+        x, y, _ = grid.positions()
+        # time-weighted fluid mean per column (nodes count only while they are fluid), spread
+        # along z so that radial_profile's column average returns it
+        col = self.uz_sum.sum(axis=2) / np.maximum(self.uz_cnt.sum(axis=2), 1.0)
+        r, u, count = obs.radial_profile(np.repeat(col[:, :, None], grid.shape[2], axis=2), grid.fluid, x, y,
+                                         grid.radius)
+        u_ref = obs.poiseuille_pipe(r, grid.radius, 2.0 * (params.u_mean_lu if params.flow_rate_lu else 0.0))
+        if params.flow_rate_lu:
+            summary["profile_error_rel_l2"] = obs.relative_l2(u, u_ref)
+        if scene.outputs.profile:
+            files["profile.csv"] = outputs.write_profile(out_dir, r, u, u_ref, count, units)
+        if series:
+            q = float(np.mean([row[1] for row in series[-max(1, self.n_avg):]]))
+            summary["flow_rate_m3_s"] = units.flow_rate_phys(q)
+
+
+class Progress(Reporter):
+    """The progress bar: steps done, simulated time and throughput."""
+
+    def __init__(self, n_steps: int, units, n_fluid: int, enabled: bool):
+        from . import outputs
+
+        self.bar = outputs.progress_bar(n_steps, units.dt_s, n_fluid, enabled=enabled)
+        self.dt_s, self.n_fluid, self.t0 = units.dt_s, n_fluid, time.perf_counter()
+
+    def advanced(self, sim, steps):
+        self.bar.update(steps)
+
+    def sample(self, sim, sample):
+        from . import outputs
+
+        elapsed = time.perf_counter() - self.t0
+        self.bar.set_postfix_str(outputs.progress_text(sim.step_count, self.dt_s, self.n_fluid, elapsed))
+        return None
+
+
+class CheckpointWriter(Reporter):
+    """Writes the complete state (the simulation plus the other reporters' accumulators) to
+    ``path`` every ``every_s`` seconds of wall time, after a guard check, and when the run is
+    interrupted (or, with ``keep``, completed); restores them with ``resume``."""
+
+    def __init__(self, path: Path, scene, every_s: float, keep: bool, run: "_RunState"):
+        from . import checkpoint as ckpt
+
+        self.path, self.every_s, self.keep, self.run = Path(path), every_s, keep, run
+        self.fingerprint = ckpt.scene_fingerprint(scene)
+        self.written = 0
+        self.resumed_from = None
+        self.last = time.perf_counter()
+
+    def resume(self, sim) -> bool:
+        """Restore ``sim`` and the accumulators from the file if there is one; True if so."""
+        from . import checkpoint as ckpt
+
+        if not self.path.exists():
+            return False
+        run, arrs = ckpt.load(self.path, sim, self.fingerprint)
+        st = self.run
+        self.resumed_from = sim.step_count
+        st.mass0, st.profile.n_avg, st.wall_before = float(run["mass0"]), int(run["n_avg"]), float(run["wall_seconds"])
+        st.profile.uz_sum[...] = arrs["uz_sum"]
+        st.profile.uz_cnt[...] = arrs["uz_cnt"]
+        st.flow.rows = [(int(r[0]), float(r[1]), float(r[2]), float(r[3])) for r in arrs["series"]]
+        if st.particles is not None and sim.particles.n:
+            rows, n = arrs["particle_rows"], sim.particles.n
+            st.particles.recorder.rows = [rows[i:i + n].copy() for i in range(0, len(rows), n)]
+        return True
+
+    def save(self, sim) -> None:
+        from . import checkpoint as ckpt
+
+        if sim.guard is not None:
+            sim.guard.check(sim)  # only a state that passes the guard is a good checkpoint
+        st = self.run
+        rec = st.particles.recorder if st.particles is not None else None
+        rows = np.concatenate(rec.rows) if rec is not None and rec.rows else np.zeros((0, 0))
+        ckpt.write(self.path, sim, self.fingerprint,
+                   run={"mass0": st.mass0, "n_avg": st.profile.n_avg, "wall_seconds": st.wall()},
+                   run_arrays={"uz_sum": st.profile.uz_sum, "uz_cnt": st.profile.uz_cnt,
+                               "series": np.array(st.flow.rows, dtype=np.float64).reshape(-1, 4),
+                               "particle_rows": rows})
+        self.written += 1
+
+    def between(self, sim):
+        if time.perf_counter() - self.last >= self.every_s:
+            self.save(sim)
+            self.last = time.perf_counter()
+
+    def finish(self, sim, status):
+        if status == "interrupted" or (status == "completed" and self.keep):
+            self.save(sim)
+
+    def record(self, status: str) -> dict:
+        if status == "completed" and not self.keep:
+            self.path.unlink(missing_ok=True)
+        return {"path": str(self.path), "resumed_from_step": self.resumed_from, "written": self.written,
+                "kept": self.path.exists(), "every_s": self.every_s}
+
+
+@dataclass
+class _RunState:
+    """The accumulators of one ``run_scene`` call that a checkpoint carries."""
+
+    flow: FlowRateSeries
+    profile: ProfileAccumulator
+    particles: ParticleSamples | None
+    mass0: float
+    wall_before: float = 0.0
+    t0: float = 0.0
+
+    def wall(self) -> float:
+        return self.wall_before + time.perf_counter() - self.t0
 
 
 def run_scene(scene, params, out_dir: Path, progress: bool = True, max_steps: int | None = None,
@@ -264,10 +542,7 @@ def run_scene(scene, params, out_dir: Path, progress: bool = True, max_steps: in
     one. ``stop_at_step`` stops the run as an interrupt would once that step is reached (to split
     a run into parts, and for tests).
     """
-    from . import checkpoint as ckpt
     from . import outputs
-    from .particles.collisions import CollisionEffect
-    from .guard import Unstable
 
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -278,105 +553,30 @@ def run_scene(scene, params, out_dir: Path, progress: bool = True, max_steps: in
     n_steps = params.n_steps if max_steps is None else min(max_steps, params.n_steps)
     spinup = min(params.spinup_steps, n_steps)
     every = params.sample_every
-    mass0 = sim.mass()
-    uz_sum = np.zeros(grid.shape)
-    uz_cnt = np.zeros(grid.shape)
-    n_avg = 0
-    ps = sim.particles
-    recorder = None
-    series = []
-    wall_before = 0.0
-    resumed_from = None
-    fingerprint = ckpt.scene_fingerprint(scene) if checkpoint is not None else ""
-    if ps is not None:
-        from .particles import placement as particles_out
-
-        recorder = particles_out.ParticleRecorder(ps, units)
-    if checkpoint is not None and Path(checkpoint).exists():
-        run, arrs = ckpt.load(Path(checkpoint), sim, fingerprint)
-        resumed_from = sim.step_count
-        mass0, n_avg, wall_before = float(run["mass0"]), int(run["n_avg"]), float(run["wall_seconds"])
-        uz_sum[...] = arrs["uz_sum"]
-        uz_cnt[...] = arrs["uz_cnt"]
-        series = [(int(r[0]), float(r[1]), float(r[2]), float(r[3])) for r in arrs["series"]]
-        if recorder is not None and ps.n:
-            rows = arrs["particle_rows"]
-            recorder.rows = [rows[i:i + ps.n].copy() for i in range(0, len(rows), ps.n)]
-    elif recorder is not None:
-        recorder.sample(0)
-
-    def save_checkpoint(wall_so_far: float) -> None:
-        rows = np.concatenate(recorder.rows) if recorder is not None and recorder.rows else np.zeros((0, 0))
-        ckpt.write(Path(checkpoint), sim, fingerprint,
-                   run={"mass0": mass0, "n_avg": n_avg, "wall_seconds": wall_so_far},
-                   run_arrays={"uz_sum": uz_sum, "uz_cnt": uz_cnt,
-                               "series": np.array(series, dtype=np.float64).reshape(-1, 4), "particle_rows": rows})
-        n_written[0] += 1
-
-    n_written = [0]
-    status = "completed"
-    message = ""
-    bar = outputs.progress_bar(n_steps, units.dt_s, grid.n_fluid, enabled=progress)
-    start_step = sim.step_count
-    if start_step:
-        bar.update(min(start_step, n_steps))
+    profile = ProfileAccumulator(grid, spinup)
+    run = _RunState(flow=FlowRateSeries(), profile=profile,
+                    particles=ParticleSamples(sim, units) if sim.particles is not None else None, mass0=sim.mass())
+    writer = CheckpointWriter(checkpoint, scene, checkpoint_every_s, keep_checkpoint, run) if checkpoint else None
+    if not (writer is not None and writer.resume(sim)) and run.particles is not None:
+        run.particles.recorder.sample(0)
+    bar = Progress(n_steps, units, grid.n_fluid, progress)
+    if sim.step_count:
+        bar.bar.update(min(sim.step_count, n_steps))
     # The first sweep compiles or loads the kernels; keep that out of the MLUPS figure.
     sim.step(0)
-    t0 = time.perf_counter()
-    last_ckpt = t0
-    setup_seconds = t0 - t_build
-    with _Interrupt() as stop:
-        try:
-            while sim.step_count < n_steps:
-                chunk = min(every - sim.step_count % every, n_steps - sim.step_count)
-                if stop_at_step is not None and sim.step_count < stop_at_step:
-                    chunk = min(chunk, stop_at_step - sim.step_count)
-                sim.step(chunk)
-                bar.update(chunk)
-                if sim.step_count % every == 0 or sim.step_count == n_steps:
-                    rho, ux, uy, uz = sim.moments()
-                    fluid = sim.fluid_mask()
-                    if not np.isfinite(rho[fluid]).all():
-                        status, message = "unstable", f"non-finite density at step {sim.step_count}"
-                        break
-                    jz = float(uz[fluid].sum())
-                    if ps is not None:
-                        if not np.isfinite(ps.bodies.v).all():
-                            status, message = "unstable", f"non-finite particle velocity at step {sim.step_count}"
-                            break
-                        jz += float(np.dot(ps.nown, ps.bodies.v[:, 2]))  # mixture: particle volume flux
-                        recorder.sample(sim.step_count)
-                    q_lu = jz / grid.shape[2]
-                    series.append((sim.step_count, q_lu, float(sim.force[2]), float(np.abs(rho[fluid] - 1).max())))
-                    if sim.step_count > spinup:
-                        uz_sum += np.where(fluid, uz, 0.0)
-                        uz_cnt += fluid
-                        n_avg += 1
-                    elapsed = time.perf_counter() - t0
-                    bar.set_postfix_str(outputs.progress_text(sim.step_count, units.dt_s, grid.n_fluid, elapsed))
-                if stop.hit or (stop_at_step is not None and sim.step_count >= stop_at_step
-                                and sim.step_count < n_steps):
-                    status, message = "interrupted", f"interrupted at step {sim.step_count}"
-                    break
-                now = time.perf_counter()
-                if checkpoint is not None and sim.step_count < n_steps and now - last_ckpt >= checkpoint_every_s:
-                    if sim.guard is not None:
-                        sim.guard.check(sim)  # only a state that passes the guard is a good checkpoint
-                    save_checkpoint(wall_before + now - t0)
-                    last_ckpt = time.perf_counter()
-            if checkpoint is not None and (status == "interrupted" or (status == "completed" and keep_checkpoint)):
-                if sim.guard is not None:
-                    sim.guard.check(sim)
-                save_checkpoint(wall_before + time.perf_counter() - t0)
-        except Unstable as exc:
-            status, message = "unstable", str(exc)
-            if checkpoint is not None and Path(checkpoint).exists():
-                message += f" The last good checkpoint is kept at {checkpoint} (resuming it with the same scene repeats the failure)."
-    wall = wall_before + time.perf_counter() - t0
-    bar.close()
-    if checkpoint is not None and status == "completed" and not keep_checkpoint:
-        Path(checkpoint).unlink(missing_ok=True)
-    mass1 = sim.mass()
+    run.t0 = bar.t0 = time.perf_counter()
+    if writer is not None:
+        writer.last = run.t0
+    setup_seconds = run.t0 - t_build
+    reporters = [FiniteState(), run.flow, *([run.particles] if run.particles else []), profile, bar,
+                 *([writer] if writer else [])]
+    outcome = run_loop(sim, n_steps, every, reporters, stop_at_step=stop_at_step)
+    wall = run.wall()
+    bar.bar.close()
+    status, message = outcome.status, outcome.message
+    if outcome.error is not None and checkpoint is not None and Path(checkpoint).exists():
+        message += f" The last good checkpoint is kept at {checkpoint} (resuming it with the same scene repeats the failure)."
+    mass0, mass1 = run.mass0, sim.mass()
     files = {}
     summary = {
         "status": status,
@@ -391,50 +591,17 @@ def run_scene(scene, params, out_dir: Path, progress: bool = True, max_steps: in
         "fluid_nodes": grid.n_fluid,
         "mass_drift_rel": (mass1 - mass0) / mass0 if math.isfinite(mass1) else float("nan"),
         "effects": {e.name: sim.timers[e.name] for e in sim.effects},
-        "samples_averaged": n_avg,
+        "samples_averaged": profile.n_avg,
         "spinup_s": spinup * units.dt_s,
     }
     if sim.guard is not None:
         summary["guard"] = sim.guard.record()
-    if checkpoint is not None:
-        summary["checkpoint"] = {"path": str(checkpoint), "resumed_from_step": resumed_from, "written": n_written[0],
-                                 "kept": Path(checkpoint).exists(), "every_s": checkpoint_every_s}
-    files["flow_rate.csv"] = outputs.write_flow_rate(out_dir, series, units, scene)
-    if ps is not None:
-        summary["particles"] = {
-            "count": ps.n, "fixed": int(len(ps.fixed_ids)),
-            "volume_fraction": float(ps.vol.sum() / max(float(np.count_nonzero(grid.fluid)), 1.0)),
-            "links": int(ps.lcnt.sum()),
-            "collisions": sim.effect(CollisionEffect) is not None,
-            **sim.packing,
-        }
-        sc = sim.effect(fx.StreamCollide)
-        if sc.spec.floor:
-            mass_fluid = max(mass0, 1e-300)
-            summary["density_floor"] = {
-                "rho_min": sc.rho_min, "mass_added_rel": float(sc.tally[0]) / mass_fluid,
-                "node_updates": int(sc.tally[1]),
-                "node_updates_per_step": float(sc.tally[1]) / max(sim.step_count, 1)}
-        ce = sim.effect(CollisionEffect)
-        summary["collisions"] = ce.record() if ce is not None else {
-            "enabled": False, "reason": "switched off by the scene" if not scene.particles.collisions.enabled
-            else "no free particles"}
-        files[particles_out.write_static(out_dir, sim.particle_static)] = True
-        files[recorder.write(out_dir)] = True
-    if grid.kind == "pipe" and n_avg > 0:
-        x, y, _ = grid.positions()
-        # time-weighted fluid mean per column (nodes count only while they are fluid), spread
-        # along z so that radial_profile's column average returns it
-        col = uz_sum.sum(axis=2) / np.maximum(uz_cnt.sum(axis=2), 1.0)
-        r, u, count = obs.radial_profile(np.repeat(col[:, :, None], grid.shape[2], axis=2), grid.fluid, x, y,
-                                         grid.radius)
-        u_ref = obs.poiseuille_pipe(r, grid.radius, 2.0 * (params.u_mean_lu if params.flow_rate_lu else 0.0))
-        if params.flow_rate_lu:
-            summary["profile_error_rel_l2"] = obs.relative_l2(u, u_ref)
-        if scene.outputs.profile:
-            files["profile.csv"] = outputs.write_profile(out_dir, r, u, u_ref, count, units)
-        if series:
-            summary["flow_rate_m3_s"] = units.flow_rate_phys(float(np.mean([row[1] for row in series[-max(1, n_avg):]])))
+    if writer is not None:
+        summary["checkpoint"] = writer.record(status)
+    run.flow.write(out_dir, summary, files, scene, units)
+    if run.particles is not None:
+        run.particles.write(out_dir, summary, files, scene, sim, mass0)
+    profile.write(out_dir, summary, files, scene, params, run.flow.rows)
     summary["files"] = sorted(files)
     outputs.write_summary(out_dir, summary, scene, params)
     return summary

@@ -17,12 +17,8 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field, replace
-from typing import TYPE_CHECKING
-
+from lbmpipe.errors import SceneError
 from lbmpipe.fluid.lattice import CS2
-
-if TYPE_CHECKING:  # pragma: no cover
-    from lbmpipe.scene import Scene
 
 CS = math.sqrt(CS2)
 #: BGK is (linearly) stable only for tau > 1/2, and in practice marginal just above it.
@@ -30,6 +26,14 @@ TAU_MARGINAL = 0.55
 #: With half-way bounce-back, the Poiseuille profile is exact when the "magic" product
 #: Lambda = (tau_+ - 1/2)(tau_- - 1/2) equals 3/16 (Ginzburg); for BGK Lambda = (tau - 1/2)^2.
 MAGIC_EXACT_WALL = 3.0 / 16.0
+
+
+def trt_omega_minus(tau: float, magic: float = MAGIC_EXACT_WALL) -> float:
+    """TRT odd-moment relaxation rate ``1 / tau_-`` for the even-moment ``tau`` (viscosity) and the
+    magic parameter ``Lambda = (tau - 1/2)(tau_- - 1/2)``."""
+    return 1.0 / (magic / (tau - 0.5) + 0.5)
+
+
 #: Default of numerics.mach_limit: beyond it the O(Ma^2) compressibility error is no longer small.
 DEFAULT_MACH_LIMIT = 0.35
 
@@ -185,7 +189,7 @@ def nodes_along(extent_mm: float, dx_mm: float) -> int:
     return int(round(extent_mm / dx_mm))
 
 
-def physical_viscosity(scene: "Scene") -> float:
+def physical_viscosity(scene) -> float:
     """Kinematic viscosity in m^2/s: given, or from ``Re = U_mean D / nu`` with ``U_mean = Q / A``."""
     fluid = scene.fluid
     if fluid.viscosity_m2_s is not None:
@@ -196,7 +200,7 @@ def physical_viscosity(scene: "Scene") -> float:
 
 
 def _expected_velocities(
-    scene: "Scene", shape: tuple[int, int, int], nu_lu: float, accel_lu: tuple[float, float, float],
+    scene, shape: tuple[int, int, int], nu_lu: float, accel_lu: tuple[float, float, float],
     flow_rate_lu: float | None, wall_velocities_lu: dict[str, tuple[float, float, float]], n_steps: int,
 ) -> tuple[float, float, float]:
     """(u_mean, u_max, characteristic length) of the expected flow, lattice units.
@@ -249,10 +253,10 @@ def _expected_velocities(
     return u_mean, u_max, char_len
 
 
-def derive(scene: "Scene") -> LatticeParams:
-    """Lattice parameters of ``scene``; raises SceneError when they make the run meaningless."""
+def derive(scene) -> LatticeParams:
+    """Lattice parameters of ``scene`` (a validated ``lbmpipe.scene.Scene``); raises SceneError
+    when they make the run meaningless."""
     from lbmpipe import cost
-    from lbmpipe.scene import SceneError
 
     num, dom, run = scene.numerics, scene.domain, scene.run
     units = Units(num.dx_mm * 1e-3, num.dt_s, scene.fluid.density_kg_m3)
@@ -276,8 +280,7 @@ def derive(scene: "Scene") -> LatticeParams:
         )
     omega = 1.0 / tau
     if num.collision == "trt":
-        tau_minus = num.trt_magic / (tau - 0.5) + 0.5
-        omega_minus = 1.0 / tau_minus
+        omega_minus = trt_omega_minus(tau, num.trt_magic)
     else:
         omega_minus = omega
 

@@ -9,12 +9,8 @@ from lbmpipe import effects as fx
 from lbmpipe.fluid import observables as obs
 from lbmpipe.fluid.lattice import get_lattice
 from lbmpipe.solver import Simulation
-
-MAGIC = 3.0 / 16.0
-
-
-def omega_minus(tau: float, magic: float = MAGIC) -> float:
-    return 1.0 / (0.5 + magic / (tau - 0.5))
+from lbmpipe.units import MAGIC_EXACT_WALL as MAGIC  # noqa: F401
+from lbmpipe.units import trt_omega_minus as omega_minus
 
 
 def run_to_steady(sim: Simulation, chunk: int = 200, tol: float = 1e-12, max_steps: int = 200_000):
@@ -41,7 +37,7 @@ def pipe_poiseuille(diameter: int, scheme: str, collision: str = "trt", tau: flo
     R = grid.radius
     u_max = 0.02  # keeps Mach ~ 0.03: compressibility error far below the discretisation error
     g = 4.0 * nu * u_max / R**2
-    sim = Simulation(grid, collision=collision, omega=1 / tau, omega_minus=omega_minus(tau), precision=precision,
+    sim = Simulation.build(grid, collision=collision, omega=1 / tau, omega_minus=omega_minus(tau), precision=precision,
                      force=(0.0, 0.0, g), extra_effects=fx.wall_effects(grid, scheme, {}))
     x, y, _ = grid.positions()
     r = np.sqrt(x[:, None, None] ** 2 + y[None, :, None] ** 2) * np.ones(grid.shape)

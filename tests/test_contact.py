@@ -477,7 +477,7 @@ def test_contact_across_a_periodic_boundary_uses_the_nearest_image():
 def test_scalar_support_point_is_bit_identical_to_shapes_support_body():
     # the GJK loop uses a scalar copy of shapes.support_body (no allocation); the two must agree
     # bit for bit, including ties (zero components, directions along the cylinder axis)
-    from lbmpipe.particles.contact import _support3
+    from lbmpipe.particles.contact import support3
 
     rng = np.random.default_rng(11)
     dirs = list(rng.standard_normal((200, 3))) + [np.array(d, float) for d in
@@ -491,7 +491,7 @@ def test_scalar_support_point_is_bit_identical_to_shapes_support_body():
                 support_body(kind, np.asarray(h), np.array(
                     [R[0, k] * d[0] + R[1, k] * d[1] + R[2, k] * d[2] for k in range(3)]), body)
                 expect = [x[k] + R[k, 0] * body[0] + R[k, 1] * body[1] + R[k, 2] * body[2] for k in range(3)]
-                got = _support3(kind, np.asarray(h), x, R, False, d[0], d[1], d[2])
+                got = support3(kind, np.asarray(h), x, R, False, d[0], d[1], d[2])
                 assert list(got) == expect
 
 

@@ -26,7 +26,7 @@ def make_sim(grid, bodies, *, tau=1.0, force=(0.0, 0.0, 0.0), gravity=(0.0, 0.0,
     system = cp.ParticleSystem(grid, bodies, gravity=gravity)
     wall_fx = walls if walls is not None else fx.wall_effects(grid, "bounce_back", {})
     pre, before, after = cp.particle_effects(system)
-    sim = Simulation(grid, collision=collision, omega=1.0 / tau, force=force,
+    sim = Simulation.build(grid, collision=collision, omega=1.0 / tau, force=force,
                      extra_effects=wall_fx + pre + before + after)
     return sim, system
 
@@ -284,7 +284,7 @@ def test_mixture_flow_rate_bookkeeping_equals_the_direct_sum():
             self.seen.append((sim.last_flux, direct))
 
     probe = Probe()
-    sim = Simulation(grid, omega=1 / 0.8, force=(0.0, 0.0, ctl.f_ref), flux=True,
+    sim = Simulation.build(grid, omega=1 / 0.8, force=(0.0, 0.0, ctl.f_ref), flux=True,
                      extra_effects=walls + pre + before + [probe, ctl] + after)
     sim.step(150)
     seen = np.array(probe.seen)
@@ -304,7 +304,7 @@ def test_interpolated_wall_falls_back_to_bounce_back_where_its_second_node_is_a_
     guard = pre[0]
     hit = (system.owner[guard.fluid2] >= 0) & (system.owner[guard.fluid] == cp.FLUID)
     assert hit.any()
-    sim = Simulation(grid, omega=1 / 0.8, force=(0.0, 0.0, 1e-5), extra_effects=walls + pre)
+    sim = Simulation.build(grid, omega=1 / 0.8, force=(0.0, 0.0, 1e-5), extra_effects=walls + pre)
     sim.step(50)
     for e in walls + pre:  # the pre phase of the next step
         e(sim)
@@ -345,7 +345,7 @@ def _moving_particles_run(threads, steps=60):
     walls = fx.wall_effects(grid, "bounce_back", {})
     pre, before, after = cp.particle_effects(system, flux_control=True, wall_links=[w.links for w in walls])
     ctl = fx.FlowRateControl(0.05 * math.pi * 100.0, grid.radius, 0.1, 32)
-    sim = Simulation(grid, omega=1 / 0.8, force=(0.0, 0.0, ctl.f_ref), flux=True,
+    sim = Simulation.build(grid, omega=1 / 0.8, force=(0.0, 0.0, ctl.f_ref), flux=True,
                      extra_effects=walls + pre + before + [ctl] + after)
     sim.step(steps)
     return sim, system

@@ -17,7 +17,7 @@ from lbmpipe.units import derive
 
 def _box_sim(floor, collision="bgk", force=(0.0, 0.0, 0.0)):
     grid = box_grid(get_lattice("D3Q15"), (6, 5, 8), (False, False, False))
-    return Simulation(grid, collision=collision, omega=1.3, omega_minus=1.1, force=force, density_floor=floor)
+    return Simulation.build(grid, collision=collision, omega=1.3, omega_minus=1.1, force=force, density_floor=floor)
 
 
 def _random_state(sim, rho_lo, seed=3):

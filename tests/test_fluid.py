@@ -72,7 +72,7 @@ def _channel(walls_axis: int, n: int, tau: float, collision: str, force=(0.0, 0.
     walls[walls_axis] = True
     grid = bnd.box_grid(get_lattice("D3Q15"), tuple(size), tuple(walls))
     effects = fx.wall_effects(grid, "bounce_back", moving or {})
-    sim = Simulation(grid, collision=collision, omega=1 / tau, omega_minus=omega_minus(tau), force=force,
+    sim = Simulation.build(grid, collision=collision, omega=1 / tau, omega_minus=omega_minus(tau), force=force,
                      extra_effects=effects)
     return sim, grid
 
@@ -124,7 +124,7 @@ def test_mass_is_conserved_to_round_off_over_ten_thousand_steps():
     lat = get_lattice("D3Q15")
     for scheme in ("bounce_back", "bouzidi"):
         grid = bnd.pipe_grid(lat, 10, 4)
-        sim = Simulation(grid, collision="bgk", omega=1 / 0.7, force=(0.0, 0.0, 2e-5),
+        sim = Simulation.build(grid, collision="bgk", omega=1 / 0.7, force=(0.0, 0.0, 2e-5),
                          extra_effects=fx.wall_effects(grid, scheme, {}))
         m0 = sim.mass()
         sim.step(10_000)
@@ -140,7 +140,7 @@ def test_flow_rate_controller_holds_q_within_a_tenth_of_a_percent():
     nu = (tau - 0.5) / 3.0
     q_target = 0.02 * np.pi * grid.radius**2  # mean velocity 0.02
     ctl = fx.FlowRateControl(q_target, grid.radius, nu, grid.shape[2])
-    sim = Simulation(grid, collision="bgk", omega=1 / tau, force=(0.0, 0.0, ctl.f_ref), flux=True,
+    sim = Simulation.build(grid, collision="bgk", omega=1 / tau, force=(0.0, 0.0, ctl.f_ref), flux=True,
                      extra_effects=fx.wall_effects(grid, "bounce_back", {}) + [ctl])
     tau_p = grid.radius**2 / (nu * 2.405**2)
     sim.step(int(20 * tau_p))
@@ -155,7 +155,7 @@ def test_flow_rate_controller_holds_q_within_a_tenth_of_a_percent():
 
 def test_scene_without_force_or_walls_assembles_only_the_bare_sweep():
     grid = bnd.box_grid(get_lattice("D3Q15"), (8, 8, 8), (False, False, False))
-    sim = Simulation(grid, collision="bgk", omega=1.0, extra_effects=fx.wall_effects(grid, "bounce_back", {}))
+    sim = Simulation.build(grid, collision="bgk", omega=1.0, extra_effects=fx.wall_effects(grid, "bounce_back", {}))
     assert [e.phase for e in sim.effects] == ["fluid"]
     # The generated sweep holds no arithmetic for absent effects: no force, no TRT odd rate, no flux.
     bare = render(KernelSpec("D3Q15", "bgk", forcing=False, flux=False))
@@ -168,7 +168,7 @@ def test_scene_without_force_or_walls_assembles_only_the_bare_sweep():
 
 def test_periodic_box_at_rest_stays_at_rest_and_uniform_flow_is_advected_unchanged():
     grid = bnd.box_grid(get_lattice("D3Q15"), (6, 5, 7), (False, False, False))
-    sim = Simulation(grid, collision="trt", omega=1 / 0.7, omega_minus=omega_minus(0.7))
+    sim = Simulation.build(grid, collision="trt", omega=1 / 0.7, omega_minus=omega_minus(0.7))
     sim.set_equilibrium(1.0, (0.01, -0.02, 0.03))
     sim.step(50)
     rho, ux, uy, uz = sim.moments()
@@ -182,7 +182,7 @@ def test_shear_wave_decays_at_the_lattice_viscosity():
     # u_x(z) = A sin(2 pi z / L) decays as exp(-nu k^2 t) with nu = (tau - 1/2)/3 (after Eq. (6)).
     L, tau, A = 64, 0.8, 1e-4
     grid = bnd.box_grid(get_lattice("D3Q15"), (1, 1, L), (False, False, False))
-    sim = Simulation(grid, collision="bgk", omega=1 / tau)
+    sim = Simulation.build(grid, collision="bgk", omega=1 / tau)
     z = grid.positions()[2]
     k = 2 * np.pi / L
     sim.set_equilibrium(1.0, (A * np.sin(k * z)[None, None, :], 0.0, 0.0))
@@ -201,7 +201,7 @@ def test_results_do_not_depend_on_the_thread_count():
     def run(threads):
         numba.set_num_threads(threads)
         grid = bnd.pipe_grid(get_lattice("D3Q15"), 12, 8)
-        sim = Simulation(grid, collision="trt", omega=1 / 0.8, omega_minus=omega_minus(0.8), force=(0, 0, 1e-5),
+        sim = Simulation.build(grid, collision="trt", omega=1 / 0.8, omega_minus=omega_minus(0.8), force=(0, 0, 1e-5),
                          extra_effects=fx.wall_effects(grid, "bouzidi", {}))
         sim.step(200)
         return sim.f.copy()
@@ -218,7 +218,7 @@ def test_power_of_two_box_gets_its_population_planes_in_distinct_cache_sets_and_
     grid = bnd.box_grid(lat, (16, 16, 16), (False, False, False))
 
     def run():
-        sim = Simulation(grid, collision="bgk", omega=1 / 0.7)
+        sim = Simulation.build(grid, collision="bgk", omega=1 / 0.7)
         u = np.sin(2 * np.pi * grid.positions()[2] / 16)[None, None, :]
         sim.set_equilibrium(1.0, (0.02 * u, -0.01 * u, 0.03))
         sim.step(30)

@@ -176,7 +176,7 @@ def test_check_links_reports_links_whose_definition_moved_or_no_longer_cites_the
         by_file.setdefault(Path(rel).name, []).append((int(line), int(eq), qual))
 
     # shift every definition of lattice.py down by one line
-    lattice = repo / "lbmpipe" / "lattice.py"
+    lattice = repo / "lbmpipe" / "fluid" / "lattice.py"
     lattice.write_text("\n" + lattice.read_text())
     stale = literate.check_links(out, repo)
     assert stale and all(s.startswith("lbmpipe/fluid/lattice.py#L") and "no longer holds" in s for s in stale)
@@ -190,7 +190,7 @@ def test_check_links_reports_links_whose_definition_moved_or_no_longer_cites_the
     assert all(s.startswith("lbmpipe/fluid/lattice.py") for s in stale)
 
     # a file that is gone
-    (repo / "lbmpipe" / "observables.py").unlink()
+    (repo / "lbmpipe" / "fluid" / "observables.py").unlink()
     stale = literate.check_links(out, repo)
     assert any(s.startswith("lbmpipe/fluid/observables.py#L") and s.endswith("file missing") for s in stale)
 

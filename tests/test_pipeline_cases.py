@@ -196,3 +196,61 @@ def test_a_case_named_in_duration_s_by_case_averages_longer_and_only_that_case()
     assert case_scene("cube24_c30_re26", case, "smoke", fid)["run"]["duration_s"] == 3.0
     assert case_scene("cube24_c30_re9.4", dict(case, reynolds=9.4), "smoke", fid)["run"]["duration_s"] == 0.3
     assert case_scene("cube24_c30_re26", case, "smoke", fid)["run"]["spinup_s"] == 0.1
+
+
+def test_assembled_step_orders_walls_particle_fills_sweep_flux_correction_control_collisions_motion():
+    from lbmpipe.particles.coupling import ParticleCoupling, ParticleFluxCorrection, ParticleMotion
+    from lbmpipe.solver import grid_from_scene, particle_system_from_scene
+
+    data = small_pipe({"random": [{"shape": "cube", "edge_mm": 8, "count": 3, "seed": 1}]})
+    scene = Scene.model_validate(data)
+    params = derive(scene)
+    grid = grid_from_scene(scene, params)
+    system, _ = particle_system_from_scene(scene, params, grid)
+    step = fx.assemble(scene, params, grid, system)
+    kinds = [type(e) for e in step.effects]
+    assert kinds == [fx.WallBounceBack, ParticleCoupling, fx.StreamCollide, ParticleFluxCorrection,
+                     fx.FlowRateControl, CollisionEffect, ParticleMotion, MassCorrection]
+    # decided once: forcing and the flux sum (flow-rate driving), the density floor (free particles)
+    spec = step.fluid.spec
+    assert spec.forcing and spec.flux and spec.floor and step.fluid.rho_min == scene.numerics.density_floor
+    assert step.force[2] == step.control[0].f_ref
+    sim = simulation_from_scene(scene, params)
+    assert [type(e) for e in sim.effects] == kinds
+    # without particles: no floor in the kernel
+    flow = Scene.model_validate({k: v for k, v in data.items() if k != "particles"})
+    bare = fx.assemble(flow, derive(flow), grid_from_scene(flow, derive(flow)))
+    assert not bare.fluid.spec.floor and bare.fluid.rho_min == 0.0
+
+
+def test_cases_study_and_stability_build_the_same_paper_pipe_flow_and_time_step():
+    from lbmpipe.reproduction import pipe, stability, study
+
+    case = cases.case_scene("flow_re26", {"reynolds": 26}, "tiny", {**SMOKE, "re26_dt_factor": 1.0})
+    stab = stability.StabilityCase("x", "", reynolds=26.0, particles=None, kind="flow").scene(5.0, 10)
+    settings = study.study_settings({"study": {}, "fidelities": {"tiny": SMOKE}}, "tiny")
+    for data in (case, stab):
+        assert data["domain"] == pipe.PIPE
+        assert data["driving"]["flow_rate_m3_s"] == pipe.FLOWS[26.0]
+        assert data["numerics"]["dt_s"] == pipe.time_step(5.0)
+    s = study.pipe_scene(settings, {"dx_mm": 5.0, "dt_factor": 1.0, "collision": "bgk", "wall": "bounce_back",
+                                    "precision": "float64"})
+    assert s["domain"]["diameter_mm"] == pipe.PIPE["diameter_mm"]
+    assert s["driving"]["flow_rate_m3_s"] == pipe.FLOWS[9.4]
+    assert s["numerics"]["dt_s"] == pipe.time_step(5.0)
+
+
+def test_config_schema_rejects_a_misspelt_study_or_stability_key():
+    from pathlib import Path
+
+    from snakemake.utils import validate
+
+    root = Path(__file__).resolve().parents[1]
+    schema = str(root / "workflow" / "schemas" / "config.schema.yaml")
+    config = yaml.safe_load((root / "config.yaml").read_text())
+    validate(copy.deepcopy(config), schema)
+    for section, level, key in (("study", "smoke", "dx"), ("stability", "smoke", "step")):
+        bad = copy.deepcopy(config)
+        bad[section][level][key] = 1
+        with pytest.raises(Exception, match="config"):
+            validate(bad, schema)

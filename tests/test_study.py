@@ -185,15 +185,6 @@ def test_predict_seconds_counts_nodes_steps_and_particle_links_of_a_scene():
     assert study.predict_seconds(sc3, derive(sc3), model) == pytest.approx(2.0 + 1e-7 * (8000 + links) * 50)
 
 
-def test_batch_means_halfwidth_shrinks_as_one_over_root_n_for_white_noise():
-    rng = np.random.default_rng(0)
-    x = 1.0 + 0.1 * rng.standard_normal(64000)
-    hws = [study.batch_means_halfwidth(x[:n], 10)[1] for n in (1000, 4000, 16000, 64000)]
-    ratios = np.array(hws[:-1]) / np.array(hws[1:])
-    assert np.all((ratios > 1.3) & (ratios < 3.0))  # 2 expected, with the scatter of 10 batches
-    assert math.isnan(study.batch_means_halfwidth(x[:3], 10)[1])
-
-
 def test_tiny_pipe_run_through_the_study_gives_a_finite_profile_error(tmp_path):
     cfg = dict(CONFIG, study={"smoke": {"pipe": {"duration_s": 1.0, "spinup_s": 0.5, "sample_interval_s": 0.05,
                                                  "dx_mm": [5.0], "dt_factors": [1.0], "walls": [], "collisions": [],

@@ -43,12 +43,9 @@ stores and no staging copy. Three things make LLVM compile it so from numba:
   by one;
 * offsets and counters are unsigned, so numba emits no negative-index wrap-around test.
 
-Measured with ``benchmarks/fluid.py`` (2026-12-01, 2-core Sapphire Rapids, medians over five
-runs): the 64^3 periodic box at 75 / 137 MLUPS on 1 / 2 threads, 91 % / 79 % of the
-copy-bandwidth roofline, 1.22 / 1.08 x lbmpy's AVX-512 kernel in the same runs (single runs
-0.89-1.37 / 0.98-1.12); the paper's pipe at 87 % / 76 % of the roofline. Before the q-planes were
-skewed across cache sets (``boundaries.plane_stride``) the box ran at 51-58 / 106-119 MLUPS,
-0.81-0.83 x lbmpy.
+``benchmarks/fluid.py`` measures the sweep against the copy-bandwidth roofline and lbmpy's kernel
+(figures: benchmarks/README.md); the q-planes are skewed across cache sets
+(``boundaries.plane_stride``) so that the 2q streams of a row do not evict each other.
 """
 
 from __future__ import annotations

@@ -43,10 +43,8 @@ When is a contact treated (``CollisionParams``):
   points carried back to the present (their midpoint, so that both bodies receive ``-/+ I p`` at
   one point and the conservation laws hold exactly). The bounce thus happens up to one step early
   instead of the bodies overlapping; this also catches a corner turning into contact, which a
-  test on the present gap and normal velocity misses. (Until 2026-12-02 the touching contacts
-  that did not approach at the start of a step went through this test too, and again after each
-  round of impulses: 0.2-0.5 of the collision step of 244 dense cylinders, for geometry the sweeps
-  now take from the narrow phase);
+  test on the present gap and normal velocity misses. Touching contacts that do not approach at
+  the start of a step skip this test: the sweeps take their geometry from the narrow phase;
 - with several contacts the impulses are applied contact by contact (Gauss-Seidel) in repeated
   sweeps until none approaches; as impulses change velocities, the speculative test is then
   repeated (a body knocked into a third one within the step) until a round applies no impulse
@@ -88,11 +86,12 @@ import numpy as np
 from numba import njit, prange
 
 from ..effects import Effect
-from .contact import (_WS_HINT, _WS_WON, WS_SIZE, _support3, _ws_rows, bodies_overlap_ws, body_contact_ws,
+from ..errors import Unstable
+from .contact import (WS_HINT, WS_WON, WS_SIZE, support3, ws_rows, bodies_overlap_ws, body_contact_ws,
                       bounding_radii, list_displacement, listed_slots, neighbour_list, new_scratch, pipe_wall_contact,
                       plane_wall_contact)
 from .shapes import CYLINDER, SPHERE, bounding_radius
-from .rigid import Bodies, _qmul, quat_to_matrix, quat_to_matrices
+from .rigid import Bodies, qmul, quat_to_matrix, quat_to_matrices
 
 PIPE = 0
 BOX = 1
@@ -675,8 +674,8 @@ def _narrow_chunk(ch, ncp, kind, h, x, Rm, rb, pi, pj, ps, pk, lwin, max_gap, ma
                 d0 /= dd
                 d1 /= dd
                 d2 /= dd
-                p10, p11, p12 = _support3(kind[i], h[i], x[i], Rm[i], False, d0, d1, d2)
-                p20, p21, p22 = _support3(kind[j], h[j], x2, Rm[j], False, -d0, -d1, -d2)
+                p10, p11, p12 = support3(kind[i], h[i], x[i], Rm[i], False, d0, d1, d2)
+                p20, p21, p22 = support3(kind[j], h[j], x2, Rm[j], False, -d0, -d1, -d2)
                 sep = d0 * (p20 - p10) + d1 * (p21 - p11) + d2 * (p22 - p12)
                 if sep > max_gap:
                     cg[m] = sep
@@ -685,10 +684,10 @@ def _narrow_chunk(ch, ncp, kind, h, x, Rm, rb, pi, pj, ps, pk, lwin, max_gap, ma
                         cc[m, k] = 0.5 * (x[i, k] + x2[k])
                     continue
             # the pair's closest features of the step before, in its list slot, go first
-            ws[_WS_HINT] = lwin[pk[m]]
+            ws[WS_HINT] = lwin[pk[m]]
             cg[m] = body_contact_ws(kind[i], h[i], x[i], Rm[i], kind[j], h[j], x2, Rm[j], max_gap, manifold_tol, nrm,
                                     c, ws)
-            lwin[pk[m]] = int(ws[_WS_WON])
+            lwin[pk[m]] = int(ws[WS_WON])
             for k in range(3):
                 cn[m, k] = nrm[k]
                 cc[m, k] = c[k]
@@ -781,8 +780,8 @@ def _apart_after(i, j, sh, axis, kind, h, x, v, wb, Rm, dt, x1, x2, R1, R2):
     a0 = axis[0]
     a1 = axis[1]
     a2 = axis[2]
-    p10, p11, p12 = _support3(kind[i], h[i], x1, R1, False, a0, a1, a2)
-    p20, p21, p22 = _support3(kind[j], h[j], x2, R2, False, -a0, -a1, -a2)
+    p10, p11, p12 = support3(kind[i], h[i], x1, R1, False, a0, a1, a2)
+    p20, p21, p22 = support3(kind[j], h[j], x2, R2, False, -a0, -a1, -a2)
     sep = a0 * (p20 + sh[0] - p10) + a1 * (p21 + sh[1] - p11) + a2 * (p22 + sh[2] - p12)
     return sep > 1e-9 * (bounding_radius(kind[i], h[i]) + bounding_radius(kind[j], h[j]))
 
@@ -799,8 +798,8 @@ def _test_scratch():
 def _test_arrays(scr):
     # the arrays of _activate_one in the buffer of _test_scratch
     o = WS_SIZE
-    return (scr[o:o + 3], scr[o + 3:o + 6], scr[o + 6:o + 9], scr[o + 9:o + 12], _ws_rows(scr, o + 12, 3, 3),
-            _ws_rows(scr, o + 21, 3, 3))
+    return (scr[o:o + 3], scr[o + 3:o + 6], scr[o + 6:o + 9], scr[o + 9:o + 12], ws_rows(scr, o + 12, 3, 3),
+            ws_rows(scr, o + 21, 3, 3))
 
 
 @njit(cache=True)
@@ -862,7 +861,7 @@ def _turn(i, lam, g, col, q, Rm):
     if ang == 0.0:
         return 0.0
     s = math.sin(0.5 * ang) / ang
-    r = _qmul(q[i, 0], q[i, 1], q[i, 2], q[i, 3], math.cos(0.5 * ang), s * fx, s * fy, s * fz)
+    r = qmul(q[i, 0], q[i, 1], q[i, 2], q[i, 3], math.cos(0.5 * ang), s * fx, s * fy, s * fz)
     nq = math.sqrt(r[0] * r[0] + r[1] * r[1] + r[2] * r[2] + r[3] * r[3])
     for k in range(4):
         q[i, k] = r[k] / nq
@@ -1320,7 +1319,7 @@ def resolve_collisions(bodies: Bodies, domain: Domain, params: CollisionParams, 
     was exhausted), ``sweeps``, ``projection_iters``, ``unresolved`` (contacts still approaching
     after max_sweeps), ``max_displacement`` (largest projection shift of a body), ``passes``.
     ``pairs=False`` skips the broad phase and all particle-particle contacts (walls only).
-    Raises ``guard.Unstable`` (naming ``step``) when a body moves so fast that its reach per step
+    Raises ``errors.Unstable`` (naming ``step``) when a body moves so fast that its reach per step
     spans the periodic length: the sign of a run that has blown up between guard checks.
     ``nlist``: the pair search's Verlet list to keep between calls (time steps); None: a fresh one.
     """
@@ -1366,7 +1365,6 @@ def _refuse(status: int, bodies: Bodies, params: CollisionParams, lo, hi, step: 
     # The geometry fits; only the speculative reach of a body moving many lattice spacings per
     # step does not. No physical suspension does that: it is a blown-up run, so report it as one
     # (the guard's status 'unstable') rather than as a bad domain.
-    from ..guard import Unstable
     speed = np.linalg.norm(bodies.v, axis=1) + np.linalg.norm(bodies.wb, axis=1) * rb
     k = int(np.argmax(np.where(~bodies.fixed, speed, -1.0)))
     raise Unstable(f"particle speed {speed[k]:.3g} lattice units per step (translation plus rotation at the "
@@ -1399,6 +1397,7 @@ class CollisionEffect(Effect):
     run's totals and the largest overlaps for the summary (``record``)."""
 
     phase = "post"
+    record_key = "collisions"
 
     def __init__(self, system, domain: Domain, params: CollisionParams, pairs: bool = True):
         self.system = system

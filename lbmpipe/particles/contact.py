@@ -47,9 +47,8 @@ near edge counts as flat.
 
 Cost. The dense 8 x 8 mm cylinders at 50 % (244 bodies in the paper's pipe) give ~1,050-1,200
 candidate pairs per step, ~800 of them within the collision model's contact gap of one lattice
-spacing, where GJK takes ~20 iterations on the curved surfaces. Measured on 1 thread, 2026-12-02,
-on that packing after 100 steps (1,190 pairs): GJK alone 3.0 ms, the exact cylinder path 0.54 ms
-for the 815 separated pairs within the contact gap, 0.87 ms for all 1,190. Inside these loops
+spacing, where GJK takes ~20 iterations on the curved surfaces; the exact cylinder path takes a
+fraction of GJK's time for the same pairs (figures: benchmarks/README.md). Inside these loops
 nothing allocates, and arrays are made and passed sparingly: each view, and each array passed to
 a function, costs a reference count, ~10-20 ns. The simplex rows go to ``_closest_triangle`` as
 scalars; the scratch is one buffer (``new_scratch``), whose views are made only on the path that
@@ -124,7 +123,7 @@ def _cross_into(a, b, out):
 
 
 @njit(cache=True, inline="always")
-def _support3(kind, h, x, R, core, d0, d1, d2):
+def support3(kind, h, x, R, core, d0, d1, d2):
     """Lab-frame support point of a body along the lab direction (d0, d1, d2), as a tuple.
     ``shapes.support_body`` written out on scalars (same operations, so the same bits; a test
     pins the two together): the GJK loop calls it twice per iteration and must not allocate.
@@ -164,7 +163,7 @@ def _support3(kind, h, x, R, core, d0, d1, d2):
 
 @njit(cache=True)
 def _support_lab(kind, h, x, R, core, d, out):
-    out[0], out[1], out[2] = _support3(kind, h, x, R, core, d[0], d[1], d[2])
+    out[0], out[1], out[2] = support3(kind, h, x, R, core, d[0], d[1], d[2])
 
 
 # ------------------------------------------------------------------------------------------------
@@ -394,8 +393,8 @@ def _gjk_from(k1, h1, x1, R1, c1, k2, h2, x2, R2, c2, scale, max_gap, rel_tol, W
     n = 0
     tol = rel_tol * scale
     for _it in range(GJK_MAX_ITER):
-        sa0, sa1, sa2 = _support3(k1, h1, x1, R1, c1, -v[0], -v[1], -v[2])
-        sb0, sb1, sb2 = _support3(k2, h2, x2, R2, c2, v[0], v[1], v[2])
+        sa0, sa1, sa2 = support3(k1, h1, x1, R1, c1, -v[0], -v[1], -v[2])
+        sb0, sb1, sb2 = support3(k2, h2, x2, R2, c2, v[0], v[1], v[2])
         w0 = sa0 - sb0
         w1 = sa1 - sb1
         w2 = sa2 - sb2
@@ -1134,16 +1133,16 @@ def _manifold_point(k1, h1, x1, R1, k2, h2, x2, R2, nrm, base, tol, out_c, ws):
     fixes the coordinate along the normal. Leaves out_c = base if the features do not meet.
     ``ws``: the scratch of ``new_scratch`` (it runs for every touching pair and step: no
     allocations)."""
-    f1 = _ws_rows(ws, _WS_F1, DISC_SIDES, 3)
-    f2 = _ws_rows(ws, _WS_F2, DISC_SIDES, 3)
-    pb = _ws_rows(ws, _WS_FB, DISC_SIDES, 3)
-    P1 = _ws_rows(ws, _WS_P1, DISC_SIDES, 2)
-    P2 = _ws_rows(ws, _WS_P2, DISC_SIDES, 2)
+    f1 = ws_rows(ws, _WS_F1, DISC_SIDES, 3)
+    f2 = ws_rows(ws, _WS_F2, DISC_SIDES, 3)
+    pb = ws_rows(ws, _WS_FB, DISC_SIDES, 3)
+    P1 = ws_rows(ws, _WS_P1, DISC_SIDES, 2)
+    P2 = ws_rows(ws, _WS_P2, DISC_SIDES, 2)
     mneg = ws[_WS_MNEG:_WS_MNEG + 3]
     t1 = ws[_WS_T1:_WS_T1 + 3]
     t2 = ws[_WS_T2:_WS_T2 + 3]
     uv = ws[_WS_UV:_WS_UV + 2]
-    pts = _ws_rows(ws, _WS_PTS, _PATCH_POINTS, 2)
+    pts = ws_rows(ws, _WS_PTS, _PATCH_POINTS, 2)
     m1 = _feature(k1, h1, x1, R1, nrm, tol, f1, pb)
     for k in range(3):
         mneg[k] = -nrm[k]
@@ -1198,9 +1197,9 @@ _WS_T1 = _WS_MNEG + 3
 _WS_T2 = _WS_T1 + 3
 _WS_UV = _WS_T2 + 3
 _WS_PTS = _WS_UV + 2
-_WS_HINT = _WS_PTS + 2 * _PATCH_POINTS
-_WS_WON = _WS_HINT + 1
-WS_SIZE = _WS_WON + 1
+WS_HINT = _WS_PTS + 2 * _PATCH_POINTS
+WS_WON = WS_HINT + 1
+WS_SIZE = WS_WON + 1
 
 
 @njit(cache=True)
@@ -1212,12 +1211,12 @@ def new_scratch(extra=0):
     views are made only where a path needs them. ``extra``: more room after ``WS_SIZE``, for a
     caller's own scratch in the same buffer."""
     ws = np.empty(WS_SIZE + extra)
-    ws[_WS_HINT] = -1.0
+    ws[WS_HINT] = -1.0
     return ws
 
 
 @njit(cache=True, inline="always")
-def _ws_rows(ws, off, rows, cols):
+def ws_rows(ws, off, rows, cols):
     # a (rows, cols) view of the scratch buffer at offset off
     return ws[off:off + rows * cols].reshape((rows, cols))
 
@@ -1235,7 +1234,7 @@ def body_contact(k1, h1, x1, R1, k2, h2, x2, R2, max_gap, manifold_tol, nrm, c):
 def _gjk_scratch(ws):
     """GJK's and EPA's working arrays in the scratch buffer (``new_scratch``): simplex W and its
     support points WA, WB, barycentric weights, witness points, search direction."""
-    return (_ws_rows(ws, _WS_W, 4, 3), _ws_rows(ws, _WS_WA, 4, 3), _ws_rows(ws, _WS_WB, 4, 3),
+    return (ws_rows(ws, _WS_W, 4, 3), ws_rows(ws, _WS_WA, 4, 3), ws_rows(ws, _WS_WB, 4, 3),
             ws[_WS_LAM:_WS_LAM + 4], ws[_WS_PA:_WS_PA + 3], ws[_WS_PB:_WS_PB + 3], ws[_WS_V:_WS_V + 3])
 
 
@@ -1243,16 +1242,16 @@ def _gjk_scratch(ws):
 def body_contact_ws(k1, h1, x1, R1, k2, h2, x2, R2, max_gap, manifold_tol, nrm, c, ws):
     """``body_contact`` with caller-provided scratch ``ws`` (``new_scratch()``). Callers that need
     only whether two bodies overlap ask ``bodies_overlap_ws``, which skips EPA and the contact
-    point. ``ws[_WS_HINT]`` is the exact cylinder path's candidate to try first (``_cylinder_gap``'s
-    ``first``; -1: none; used once), and ``ws[_WS_WON]`` the certified one after the call (-1:
+    point. ``ws[WS_HINT]`` is the exact cylinder path's candidate to try first (``_cylinder_gap``'s
+    ``first``; -1: none; used once), and ``ws[WS_WON]`` the certified one after the call (-1:
     none, or not two cylinders): the narrow phase keeps it per pair from one step to the next.
     A wrong hint costs one candidate and changes no result."""
-    first = int(ws[_WS_HINT])
-    ws[_WS_HINT] = -1.0
-    ws[_WS_WON] = -1.0
+    first = int(ws[WS_HINT])
+    ws[WS_HINT] = -1.0
+    ws[WS_WON] = -1.0
     if k1 == CYLINDER and k2 == CYLINDER:
         gap, pa, pb, won = _cylinder_gap(h1, x1, R1, h2, x2, R2, first)
-        ws[_WS_WON] = won
+        ws[WS_WON] = won
         if gap >= 0.0:
             for k in range(3):
                 nrm[k] = (pb[k] - pa[k]) / gap
@@ -1283,9 +1282,9 @@ def body_contact_ws(k1, h1, x1, R1, k2, h2, x2, R2, max_gap, manifold_tol, nrm, 
                     c[0], c[1], c[2] = b0, b1, b2
                     return gap
                 if p1:
-                    q0, q1, q2 = _support3(k1, h1, x1, R1, False, nrm[0], nrm[1], nrm[2])
+                    q0, q1, q2 = support3(k1, h1, x1, R1, False, nrm[0], nrm[1], nrm[2])
                 else:
-                    q0, q1, q2 = _support3(k2, h2, x2, R2, False, -nrm[0], -nrm[1], -nrm[2])
+                    q0, q1, q2 = support3(k2, h2, x2, R2, False, -nrm[0], -nrm[1], -nrm[2])
                 q0 -= b0
                 q1 -= b1
                 q2 -= b2

@@ -1617,6 +1617,7 @@ class MassCorrection(fx.Effect):
 
     name = "particles: mass correction"
     phase = "post"
+    record_key = "mass_correction"
 
     def __init__(self, system: ParticleSystem, every: int = 25):
         self.system = system
@@ -1638,6 +1639,9 @@ class MassCorrection(fx.Effect):
         d_rho = self.rho_target - mass / max(n, 1)
         _add_density(f2, s.owner, s.w, d_rho)
         self.added += d_rho * n
+
+    def record(self) -> dict:
+        return {"mass_added": self.added, "calls": self.calls}
 
 
 @njit(parallel=True, cache=True)

@@ -53,7 +53,7 @@ from .shapes import principal_inertia, volume
 
 
 @njit(cache=True)
-def _qmul(aw, ax, ay, az, bw, bx, by, bz):
+def qmul(aw, ax, ay, az, bw, bx, by, bz):
     return (
         aw * bw - ax * bx - ay * by - az * bz,
         aw * bx + ax * bw + ay * bz - az * by,
@@ -78,7 +78,7 @@ def _rot(qw, qx, qy, qz, vx, vy, vz):
 @njit(cache=True)
 def quat_mul(a, b):
     """Hamilton product ``a (x) b`` of two quaternions (4,) -> (4,)."""
-    r = _qmul(a[0], a[1], a[2], a[3], b[0], b[1], b[2], b[3])
+    r = qmul(a[0], a[1], a[2], a[3], b[0], b[1], b[2], b[3])
     out = np.empty(4)
     out[0], out[1], out[2], out[3] = r
     return out
@@ -324,7 +324,7 @@ def _free_rotate(q, pi, inertia, k, t):
     b1 = sh if k == 0 else 0.0
     b2 = sh if k == 1 else 0.0
     b3 = sh if k == 2 else 0.0
-    r = _qmul(q[0], q[1], q[2], q[3], ch, b1, b2, b3)
+    r = qmul(q[0], q[1], q[2], q[3], ch, b1, b2, b3)
     q[0], q[1], q[2], q[3] = r
 
 

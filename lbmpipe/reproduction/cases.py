@@ -1,11 +1,9 @@
 """The paper's cases as scenes: the case matrix of the pipeline's config turned into scene dicts.
 
 The Snakemake layer only names cases and fidelity levels; this module decides what a case means
-physically (NOTES.md "Parameters"): the 50 mm x 100 mm periodic pipe, the two flow rates with their
-Reynolds numbers, the particles (a dense random packing of one shape at 30 % or 50 %, collisions on
-or off), and how a fidelity level sets the lattice. Coarser levels keep the paper's Mach number
-(acoustic scaling, ``dt`` proportional to ``dx``), so that only the resolution changes; ``tau`` then
-follows from the Reynolds number.
+physically (NOTES.md "Parameters"): the paper's pipe and flow rates (``pipe``), the particles (a
+dense random packing of one shape at 30 % or 50 %, collisions on or off), and how a fidelity level
+sets the lattice (``pipe.time_step``: the paper's Mach number at every level).
 
 Packings are made in mm, independent of the lattice, so one packing (shape, concentration, seed)
 serves every fidelity level and both Reynolds numbers: the Re 9.4 and Re 26 runs of a shape start
@@ -22,10 +20,7 @@ from pathlib import Path
 import yaml
 
 from ..scene import Scene, SceneError
-
-PIPE = {"kind": "pipe", "diameter_mm": 50.0, "length_mm": 100.0}
-#: NOTES.md: Q = 1.577e-4 m^3/s at Re 9.4 ("LF"), 3.154e-4 m^3/s at Re 26 ("HF").
-FLOWS = {9.4: 1.577e-4, 26.0: 3.154e-4}
+from .pipe import DT_PER_MM_S, FLOWS, PIPE, pipe_scene, time_step
 
 
 def fidelity_numerics(fidelity: dict, reynolds: float | None = None) -> dict:
@@ -35,7 +30,7 @@ def fidelity_numerics(fidelity: dict, reynolds: float | None = None) -> dict:
     num = {k: v for k, v in fidelity.get("numerics", {}).items()}
     dx = float(fidelity["dx_mm"])
     num["dx_mm"] = dx
-    num["dt_s"] = float(fidelity.get("dt_s", fidelity.get("dt_per_mm_s", 1.0e-3) * dx))
+    num["dt_s"] = float(fidelity.get("dt_s", time_step(dx, fidelity.get("dt_per_mm_s", DT_PER_MM_S))))
     if reynolds is not None and float(reynolds) == 26.0:
         num["dt_s"] *= float(fidelity.get("re26_dt_factor", 1.0))
     return num
@@ -48,17 +43,10 @@ def case_scene(name: str, case: dict, fidelity_name: str, fidelity: dict, packin
     if re not in FLOWS:
         raise ValueError(f"case {name}: reynolds must be one of {sorted(FLOWS)} (the paper's flows), got {re}")
     run = fidelity["run"]
-    scene = {
-        "name": f"{name}_{fidelity_name}",
-        "domain": copy.deepcopy(PIPE),
-        "fluid": {"density_kg_m3": 1000.0, "reynolds": re},
-        "driving": {"kind": "flow_rate", "flow_rate_m3_s": FLOWS[re]},
-        "initial": {"velocity": "parabolic"},
-        "numerics": fidelity_numerics(fidelity, re),
-        # Few large particles give few independent samples per second: such cases average longer.
-        "run": {"duration_s": float(fidelity.get("duration_s_by_case", {}).get(name, run["duration_s"])),
-                "spinup_s": run["spinup_s"], "sample_interval_s": run["sample_interval_s"]},
-    }
+    # Few large particles give few independent samples per second: such cases average longer.
+    scene = pipe_scene(f"{name}_{fidelity_name}", re, fidelity_numerics(fidelity, re),
+                       {"duration_s": float(fidelity.get("duration_s_by_case", {}).get(name, run["duration_s"])),
+                        "spinup_s": run["spinup_s"], "sample_interval_s": run["sample_interval_s"]})
     if "mach_limit" in fidelity:
         scene["numerics"]["mach_limit"] = fidelity["mach_limit"]
     part = case.get("particles")
@@ -172,9 +160,8 @@ def estimate_minutes(config: dict, fidelity_name: str, case_name: str) -> int:
     return max(1, int(2 * factor * params.estimated_seconds / 60.0) + 1)
 
 
-#: whole step with particles relative to the particle-free step, at 30 % and at 50 %: the paper
-#: level on this machine (2026-11-22, 1 thread per case) took 6-19 ms per step at 30 % and
-#: 13-46 ms at 50 % against 2.9 ms without particles (collisions dominate the dense cases).
+#: whole step with particles relative to the particle-free step, at 30 % and at 50 % (the paper
+#: level's measured steps: benchmarks/README.md; collisions dominate the dense cases).
 PARTICLE_COST_FACTOR = (8.0, 20.0)
 
 

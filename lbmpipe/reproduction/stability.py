@@ -53,10 +53,7 @@ from pathlib import Path
 
 import numpy as np
 
-PIPE = {"kind": "pipe", "diameter_mm": 50.0, "length_mm": 100.0}
-FLOWS = {9.4: 1.577e-4, 26.0: 3.154e-4}
-#: the paper's dt per mm of dx (dx = 1 mm, dt = 1 ms): acoustic scaling keeps its Mach numbers
-DT_PER_MM = 1.0e-3
+from .pipe import DENSITY_KG_M3, pipe_scene, time_step
 
 #: stated bounds of the invariants
 BOUNDS = {
@@ -105,31 +102,24 @@ class StabilityCase:
 
     def scene(self, dx_mm: float, steps: int, sample_steps: int = 25) -> dict:
         dx = float(self.fixed_dx_mm or dx_mm)
-        dt = DT_PER_MM * dx * self.dt_factor
-        q = FLOWS[self.reynolds]
-        fluid: dict = {"density_kg_m3": 1000.0}
+        dt = time_step(dx, factor=self.dt_factor)
+        fluid: dict = {"density_kg_m3": DENSITY_KG_M3}
         if self.tau is not None:
             fluid["viscosity_m2_s"] = (self.tau - 0.5) * (dx * 1e-3) ** 2 / (3.0 * dt)
         else:
             fluid["reynolds"] = self.reynolds
         sample = min(sample_steps, steps)
-        data = {
-            "name": f"stability_{self.name}",
-            "domain": copy.deepcopy(PIPE),
-            "fluid": fluid,
-            "driving": {"kind": "flow_rate", "flow_rate_m3_s": q},
-            "initial": {"velocity": "parabolic"},
-            "numerics": {"dx_mm": dx, "dt_s": dt, "collision": self.collision, "mach_limit": self.mach_limit},
-            "run": {"duration_s": steps * dt, "spinup_s": 0.0, "sample_interval_s": sample * dt},
-            "outputs": {"profile": False, "flow_rate": True},
-        }
+        data = pipe_scene(f"stability_{self.name}", self.reynolds,
+                          {"dx_mm": dx, "dt_s": dt, "collision": self.collision, "mach_limit": self.mach_limit},
+                          {"duration_s": steps * dt, "spinup_s": 0.0, "sample_interval_s": sample * dt},
+                          fluid=fluid, outputs={"profile": False, "flow_rate": True})
         if self.particles is not None:
             data["particles"] = copy.deepcopy(self.particles)
         return data
 
     def settings(self, dx_mm: float) -> str:
         dx = float(self.fixed_dx_mm or dx_mm)
-        parts = [self.collision.upper(), f"dx {dx:g} mm", f"dt {DT_PER_MM * dx * self.dt_factor:.4g} s",
+        parts = [self.collision.upper(), f"dx {dx:g} mm", f"dt {time_step(dx, factor=self.dt_factor):.4g} s",
                  f"Re {self.reynolds:g}" if self.tau is None else f"tau {self.tau:g}"]
         if self.particles:
             parts.append(_describe_particles(self.particles))
@@ -308,12 +298,8 @@ def run_case(case: StabilityCase, dx_mm: float, steps: int, work_dir: Path | Non
     ``probe_every`` steps; returns the table row (module docstring)."""
     import numba
 
-    from ..particles.collisions import CollisionEffect
-    from ..particles.coupling import MassCorrection
-    from ..effects import StreamCollide
-    from ..guard import Unstable
     from ..scene import Scene, SceneError
-    from ..solver import simulation_from_scene
+    from ..solver import run_loop, simulation_from_scene
     from ..units import derive
 
     if threads:
@@ -338,50 +324,70 @@ def run_case(case: StabilityCase, dx_mm: float, steps: int, work_dir: Path | Non
         sim = simulation_from_scene(scene, params)
         row.update(dt_s=params.units.dt_s, tau=params.tau, mach=params.mach_max, reynolds=params.reynolds,
                    particles=sim.particles.n if sim.particles is not None else 0)
-        guard = sim.guard
-        ce = sim.effect(CollisionEffect)
-        mc = sim.effect(MassCorrection)
-        sc = sim.effect(StreamCollide)  # its density-floor tally (zero without free particles)
-        fluid0 = sim.fluid_mask()
-        mass0 = sim.mass()
-        rho0 = mass0 / max(int(fluid0.sum()), 1)
-        ke_ref = _ke_reference(sim, params)
-        stats = {"u_max": 0.0, "rho_min": np.inf, "rho_max": -np.inf, "drift": 0.0, "ke": 0.0,
-                 "clear": _min_wall_clearance(sim)}
-        status, message, failed = "stable", "", None
-        try:
-            while sim.step_count < steps:
-                sim.step(min(probe_every, steps - sim.step_count))
-                res = guard.check(sim)
-                stats["u_max"] = max(stats["u_max"], res["u_max"])
-                stats["rho_min"] = min(stats["rho_min"], res["rho_min"])
-                stats["rho_max"] = max(stats["rho_max"], res["rho_max"])
-                m = sim.mass()
-                if sim.particles is None:
-                    drift = abs(m - mass0) / mass0
-                else:
-                    drift = abs(m / max(int(sim.particles.n_fluid), 1) - rho0) / rho0
-                stats["drift"] = max(stats["drift"], drift)
-                stats["ke"] = max(stats["ke"], _kinetic_energy(sim) / ke_ref)
-                stats["clear"] = min(stats["clear"], _min_wall_clearance(sim))
-        except Unstable as exc:
-            status, message, failed = "unstable", str(exc), exc.step
+        probe = _Probe(sim, params)
+        out = run_loop(sim, steps, probe_every, [probe], interruptible=False)
+        if out.status == "unstable":
+            status, message, failed = "unstable", out.message, out.error.step if out.error is not None else None
+        else:
+            status, message, failed = "stable", "", None
+        stats, mass0 = probe.stats, probe.mass0
+        records = sim.records()
+        floor = records.get("density_floor", {"mass_added": 0.0, "node_updates": 0.0})
+        ce = records.get("collisions")
         row.update(status=status, failed_step=failed, message=message, steps_done=int(sim.step_count),
                    max_u_over_cs=stats["u_max"] * math.sqrt(3.0), rho_min=stats["rho_min"], rho_max=stats["rho_max"],
                    mass_drift_rel=stats["drift"],
-                   mass_corrected_rel=(mc.added / mass0) if mc is not None else 0.0,
-                   floor_mass_rel=float(sc.tally[0]) / mass0, floor_node_updates=int(sc.tally[1]),
+                   mass_corrected_rel=(records["mass_correction"]["mass_added"] / mass0
+                                       if "mass_correction" in records else 0.0),
+                   floor_mass_rel=floor["mass_added"] / mass0, floor_node_updates=int(floor["node_updates"]),
                    ke_ratio_max=stats["ke"],
-                   max_overlap_before_lu=ce.totals["max_overlap_before_lu"] if ce is not None else float("nan"),
-                   max_overlap_after_lu=ce.totals["max_overlap_after_lu"] if ce is not None else float("nan"),
-                   overlap_bound_lu=ce.params.overlap_tol if ce is not None else float("nan"),
-                   impulses=ce.totals["impulses"] if ce is not None else 0,
+                   max_overlap_before_lu=ce["max_overlap_before_lu"] if ce is not None else float("nan"),
+                   max_overlap_after_lu=ce["max_overlap_after_lu"] if ce is not None else float("nan"),
+                   overlap_bound_lu=ce["overlap_bound_lu"] if ce is not None else float("nan"),
+                   impulses=ce["impulses"] if ce is not None else 0,
                    min_wall_clearance_lu=stats["clear"],
                    wall_seconds=time.perf_counter() - t0)
         return _finish(row)
     finally:
         if tmp is not None:
             tmp.cleanup()
+
+
+class _Probe:
+    """The suite's reporter (``solver.Reporter``): at every sample a guard check, and the extremes
+    of the invariants (fluid speed and density, mass drift, kinetic energy against
+    Hagen-Poiseuille's, wall clearance)."""
+
+    def __init__(self, sim, params):
+        self.mass0 = sim.mass()
+        self.rho0 = self.mass0 / max(int(sim.fluid_mask().sum()), 1)
+        self.ke_ref = _ke_reference(sim, params)
+        self.stats = {"u_max": 0.0, "rho_min": np.inf, "rho_max": -np.inf, "drift": 0.0, "ke": 0.0,
+                      "clear": _min_wall_clearance(sim)}
+
+    def advanced(self, sim, steps) -> None:
+        pass
+
+    def sample(self, sim, sample) -> None:
+        stats = self.stats
+        res = sim.guard.check(sim)
+        stats["u_max"] = max(stats["u_max"], res["u_max"])
+        stats["rho_min"] = min(stats["rho_min"], res["rho_min"])
+        stats["rho_max"] = max(stats["rho_max"], res["rho_max"])
+        m = sim.mass()
+        if sim.particles is None:
+            drift = abs(m - self.mass0) / self.mass0
+        else:
+            drift = abs(m / max(int(sim.particles.n_fluid), 1) - self.rho0) / self.rho0
+        stats["drift"] = max(stats["drift"], drift)
+        stats["ke"] = max(stats["ke"], _kinetic_energy(sim) / self.ke_ref)
+        stats["clear"] = min(stats["clear"], _min_wall_clearance(sim))
+
+    def between(self, sim) -> None:
+        pass
+
+    def finish(self, sim, status) -> None:
+        pass
 
 
 def _finish(row: dict) -> dict:

@@ -46,7 +46,11 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from .cases import FLOWS, PIPE
+from .pipe import DENSITY_KG_M3, DT_PER_MM_S, FLOWS, PIPE, pipe_scene, time_step
+from .statistics import batch_means
+
+#: the batch-means estimator the averaging study names in its rows
+BATCH_MEANS = f"{batch_means.__module__}.{batch_means.__name__}"
 
 # ----------------------------------------------------------------------------------------------
 # Settings
@@ -123,7 +127,7 @@ def study_settings(config: dict, fidelity: str) -> dict:
     s = _merge(s, user.get(fidelity, user.get("default", {})) or {})
     fid = config["fidelities"][fidelity]
     dx = float(fid["dx_mm"])
-    dt_per_mm = float(fid["dt_s"]) / dx if "dt_s" in fid else float(fid.get("dt_per_mm_s", 1.0e-3))
+    dt_per_mm = float(fid["dt_s"]) / dx if "dt_s" in fid else float(fid.get("dt_per_mm_s", DT_PER_MM_S))
     num = fid.get("numerics", {}) or {}
     base = {"dx_mm": dx, "dt_factor": 1.0, "collision": num.get("collision", "bgk"),
             "wall": num.get("wall", "bounce_back"), "precision": num.get("precision", "float64")}
@@ -154,7 +158,7 @@ def run_id(reference: str, setting: dict, offset: int | None = None) -> str:
 
 def _numerics(setting: dict, dt_per_mm_s: float) -> dict:
     dx = float(setting["dx_mm"])
-    return {"dx_mm": dx, "dt_s": dt_per_mm_s * dx * float(setting["dt_factor"]), "collision": setting["collision"],
+    return {"dx_mm": dx, "dt_s": time_step(dx, dt_per_mm_s, float(setting["dt_factor"])), "collision": setting["collision"],
             "wall": setting["wall"], "precision": setting["precision"],
             # the study measures what each dt costs in accuracy: report the Mach number, do not refuse it
             "mach_limit": 1.0, "min_diameter_nodes": 4}
@@ -165,16 +169,9 @@ def pipe_scene(settings: dict, setting: dict, name: str = "study_pipe") -> dict:
     paper's flow rate, parabolic start) at one setting of the knobs."""
     p = settings["pipe"]
     re = float(p["reynolds"])
-    return {
-        "name": name,
-        "domain": {"kind": "pipe", "diameter_mm": PIPE["diameter_mm"], "length_mm": float(p["length_mm"])},
-        "fluid": {"density_kg_m3": 1000.0, "reynolds": re},
-        "driving": {"kind": "flow_rate", "flow_rate_m3_s": FLOWS[re]},
-        "initial": {"velocity": "parabolic"},
-        "numerics": _numerics(setting, settings["dt_per_mm_s"]),
-        "run": {k: float(p[k]) for k in ("duration_s", "spinup_s", "sample_interval_s")},
-        "outputs": {"profile": True, "flow_rate": True},
-    }
+    return pipe_scene(name, re, _numerics(setting, settings["dt_per_mm_s"]),
+                      {k: float(p[k]) for k in ("duration_s", "spinup_s", "sample_interval_s")},
+                      length_mm=float(p["length_mm"]), outputs={"profile": True, "flow_rate": True})
 
 
 def sc_drag_reference(c: float) -> float:
@@ -225,7 +222,7 @@ def drag_scene(settings: dict, setting: dict, offset: int, name: str = "study_dr
     return {
         "name": name,
         "domain": {"kind": "box", "size_mm": [box, box, box]},
-        "fluid": {"density_kg_m3": 1000.0, "viscosity_m2_s": geo["nu_m2_s"]},
+        "fluid": {"density_kg_m3": DENSITY_KG_M3, "viscosity_m2_s": geo["nu_m2_s"]},
         "driving": {"kind": "body_force", "acceleration_m_s2": [0.0, 0.0, geo["g_m_s2"]]},
         "initial": {"velocity": "rest"},
         "numerics": _numerics(setting, settings["dt_per_mm_s"]),
@@ -590,57 +587,6 @@ def observable_rows(config: dict, fidelity: str, root: Path = Path("results")) -
     return rows
 
 
-def batch_means_halfwidth(x: np.ndarray, n_batches: int = 8, confidence: float = 0.95) -> tuple[float, float, int]:
-    """(mean, half-width, batches used) of the ``confidence`` interval of the mean of a
-    correlated series by batch means: ``b`` contiguous batches of equal length, Student t with
-    ``b - 1`` degrees of freedom; ``b`` is capped at ``len(x) // 2`` (batches of at least two
-    samples). NaN half-width for fewer than 4 samples."""
-    from scipy import stats
-
-    x = np.asarray(x, dtype=float)
-    n = x.size
-    b = min(int(n_batches), n // 2)
-    if n < 4 or b < 2:
-        return (float(np.mean(x)) if n else float("nan")), float("nan"), 0
-    m = n // b
-    means = x[n - b * m:].reshape(b, m).mean(axis=1)  # drop the oldest remainder, keep the end
-    hw = stats.t.ppf(0.5 + confidence / 2.0, b - 1) * means.std(ddof=1) / math.sqrt(b)
-    return float(np.mean(x)), float(hw), b
-
-
-def _halfwidth(x: np.ndarray, n_batches: int) -> tuple[float, float, str]:
-    """Half-width from ``lbmpipe.reproduction.statistics.batch_means`` when that module offers it (and its
-    result can be read as a half-width), else from :func:`batch_means_halfwidth`."""
-    try:
-        from .statistics import batch_means  # type: ignore[attr-defined]
-    except Exception:  # the module is written by another helper; its absence is expected
-        batch_means = None
-    if batch_means is not None:
-        try:
-            res = batch_means(np.asarray(x, float), n_batches=n_batches)
-        except TypeError:
-            try:
-                res = batch_means(np.asarray(x, float))
-            except Exception:
-                res = None
-        except Exception:
-            res = None
-        hw = None
-        if isinstance(res, dict):
-            for k in ("half_width", "halfwidth", "ci95", "ci"):
-                if k in res:
-                    hw = res[k]
-                    break
-        elif isinstance(res, (tuple, list)) and len(res) >= 2:
-            hw = res[1]
-        elif hasattr(res, "half_width"):
-            hw = res.half_width
-        if hw is not None and np.isfinite(float(hw)):
-            return float(np.mean(x)), float(hw), "lbmpipe.reproduction.statistics.batch_means"
-    mean, hw, _ = batch_means_halfwidth(x, n_batches)
-    return mean, hw, "lbmpipe.reproduction.study.batch_means_halfwidth"
-
-
 def averaging_rows(config: dict, fidelity: str, root: Path = Path("results")) -> list[dict]:
     """Relative 95 % half-width of mean |Omega_c| (c = ``averaging.component``) against the
     averaging window: the particle-averaged series after spin-up, truncated to its first
@@ -674,12 +620,12 @@ def averaging_rows(config: dict, fidelity: str, root: Path = Path("results")) ->
     k = 0
     while n // 2**k >= int(a["min_samples"]):
         m = n // 2**k
-        mean, hw, impl = _halfwidth(x[:m], int(a["n_batches"]))
+        mean, hw, _ = batch_means(x[:m], int(a["n_batches"]))
         window = m * dt_sample
         frac = (spin + window) / total if total > 0 else float("nan")
         rows.append({**base, "run": f"{fidelity}/{case}/window_{window:.4g}s", "setting": f"{window:.3g} s", "is_base": k == 0, "value": mean, "reference_value": mean,
                      "error": hw / mean if mean > 0 else float("nan"), "error_signed": hw / mean if mean > 0 else float("nan"),
-                     "error_what": f"95 % batch-means half-width / mean of |Omega_{comp}| ({impl})",
+                     "error_what": f"95 % batch-means half-width / mean of |Omega_{comp}| ({BATCH_MEANS})",
                      "averaging_s": window, "simulated_s": spin + window, "samples": m,
                      "wall_s": wall * frac, "cpu_s": cpu * frac, "solver_s": work["solver_s"] * frac,
                      "steps": int(round(work["steps"] * frac)), "nodes": work["nodes"],

@@ -6,7 +6,7 @@ from lbmpipe.reproduction.cases import simulate_case
 sys.stdout = sys.stderr = open(snakemake.log[0], "w")
 summary = simulate_case(snakemake.input.scene, snakemake.input.get("packing_info"),
                         Path(snakemake.output.summary).parent, snakemake.threads,
-                        checkpoint=snakemake.params.checkpoint)
+                        checkpoint=snakemake.params.get("checkpoint"))
 print(f"{snakemake.wildcards.case}: {summary['status']} {summary.get('message', '')}")
-if summary["status"] not in ("completed", "unpackable", "unstable"):
+if summary["status"] not in snakemake.params.accept:
     sys.exit(f"case {snakemake.wildcards.case} ended with status {summary['status']}: {summary.get('message', '')}")
