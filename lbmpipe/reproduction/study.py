@@ -46,7 +46,8 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from .pipe import DENSITY_KG_M3, DT_PER_MM_S, FLOWS, PIPE, pipe_scene, time_step
+from .pipe import DENSITY_KG_M3, DT_PER_MM_S, FLOWS, PIPE, time_step
+from .pipe import pipe_scene as paper_pipe_scene
 from .statistics import batch_means
 
 #: the batch-means estimator the averaging study names in its rows
@@ -169,9 +170,9 @@ def pipe_scene(settings: dict, setting: dict, name: str = "study_pipe") -> dict:
     paper's flow rate, parabolic start) at one setting of the knobs."""
     p = settings["pipe"]
     re = float(p["reynolds"])
-    return pipe_scene(name, re, _numerics(setting, settings["dt_per_mm_s"]),
-                      {k: float(p[k]) for k in ("duration_s", "spinup_s", "sample_interval_s")},
-                      length_mm=float(p["length_mm"]), outputs={"profile": True, "flow_rate": True})
+    return paper_pipe_scene(name, re, _numerics(setting, settings["dt_per_mm_s"]),
+                            {k: float(p[k]) for k in ("duration_s", "spinup_s", "sample_interval_s")},
+                            length_mm=float(p["length_mm"]), outputs={"profile": True, "flow_rate": True})
 
 
 def sc_drag_reference(c: float) -> float:
