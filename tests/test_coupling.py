@@ -11,9 +11,9 @@ import numpy as np
 import pytest
 
 from lbmpipe.fluid import boundaries as bnd
-from lbmpipe.particles.placement import coupling as cp
+from lbmpipe.particles import coupling as cp
 from lbmpipe import effects as fx
-from lbmpipe.particles.placement import shapes
+from lbmpipe.particles import shapes
 from lbmpipe.fluid.lattice import get_lattice
 from lbmpipe.particles.rigid import Bodies, quat_from_axis_angle, random_quaternions, rotate
 from lbmpipe.solver import Simulation
@@ -376,7 +376,7 @@ _DIGEST = """
 import hashlib, json, sys
 sys.path.insert(0, sys.argv[1])
 from test_coupling import _moving_particles_run
-from lbmpipe.particles.placement import coupling
+from lbmpipe.particles import coupling
 sim, system = _moving_particles_run(2)
 h = hashlib.sha256(sim.f.tobytes())
 for a in ("x", "v", "q", "wb"):

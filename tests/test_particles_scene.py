@@ -8,7 +8,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from lbmpipe.particles.placement import placement as pt
+from lbmpipe.particles import placement as pt
 from lbmpipe.scene import Scene, SceneError, load_scene
 from lbmpipe.particles.shapes import CUBE, CYLINDER, SPHERE
 from lbmpipe.solver import run_scene, simulation_from_scene

@@ -5,7 +5,7 @@ import math
 import numpy as np
 import pytest
 
-from lbmpipe.particles.placement import shapes
+from lbmpipe.particles import shapes
 from lbmpipe.particles.shapes import (
     CUBE,
     CYLINDER,

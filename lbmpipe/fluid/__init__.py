@@ -1,2 +1,3 @@
 """The lattice Boltzmann fluid: lattices, the generated stream-and-collide kernels,
-wall boundaries and the observables of the populations. Depends on nothing else in lbmpipe."""
+wall boundaries and the observables of the populations. Depends on nothing else in lbmpipe (but
+its cache folder, ``lbmpipe.cache_root``)."""
