@@ -223,7 +223,7 @@ def mean_interval(series, dt: float, tau_s: float | None = None, confidence: flo
 # ----------------------------------------------------------------------------------------------
 # stationarity
 
-def mser_truncation(series, batch: int = 5) -> dict:
+def mser_truncation(series, batch: int = 5, min_kept: int = 10) -> dict:
     """MSER-``batch`` truncation point (White 1997, Simulation 69, 323; White, Cobb & Spratt 2000,
     Proc. Winter Simulation Conf.; MSER-5: Franklin & White 2008): the series is reduced to the
     means ``Z_j`` of ``batch`` consecutive samples (an incomplete last batch dropped) and ``d``
@@ -231,15 +231,16 @@ def mser_truncation(series, batch: int = 5) -> dict:
 
         MSER(d) = sum_{j > d} (Z_j - Zbar_d)^2 / (nb - d)^2
 
-    (the squared standard error of the kept mean, iid-style) is smallest, searched over the first
-    half, ``d <= nb/2`` (the statistic is erratic at the end of the series). When the minimum over
-    all ``d`` lies in the second half the series has not settled within it: ``settled`` False.
+    (the squared standard error of the kept mean, iid-style) is smallest. Candidates keep at least
+    ``min_kept`` batches (with only a few left the statistic can be ~0 by chance). White's rule: a
+    minimum in the second half means the series has not settled within it (``settled`` False);
+    the cut is then the best one in the first half (a lower bound on the spin-up).
 
     Returns ``{index, batches_cut, settled}``: ``index`` the first kept sample.
     """
     x = _clean(series)
     nb = x.size // batch
-    if nb < 4:
+    if nb < max(4, 2 * int(min_kept)):
         return {"index": 0, "batches_cut": 0, "settled": False}
     z = x[: nb * batch].reshape(nb, batch).mean(axis=1)
     s1 = np.cumsum(z[::-1])[::-1]  # sum_{j >= d} z_j
@@ -247,10 +248,12 @@ def mser_truncation(series, batch: int = 5) -> dict:
     m = nb - np.arange(nb)
     ss = np.maximum(s2 - s1 * s1 / m, 0.0)
     mser = ss / (m * m)
-    mser[-1] = np.inf  # one batch has no spread
+    last = max(1, nb - int(min_kept))  # candidates d = 0 .. last - 1
+    mser = mser[:last]
     half = nb // 2
-    d = int(np.argmin(mser[: half + 1]))
-    settled = bool(mser[d] <= mser[half + 1:].min()) if half + 1 < nb else True
+    d_all = int(np.argmin(mser))
+    settled = d_all <= half
+    d = d_all if settled else int(np.argmin(mser[: half + 1]))
     return {"index": d * batch, "batches_cut": d, "settled": settled}
 
 
@@ -302,7 +305,9 @@ def spinup_end(t, observables: dict, min_spinup_s: float, confidence: float = 0.
                          agree=agree, overlap=overlap)
         if not per[name]["settled"]:
             msgs.append(f"{name}: MSER minimum in the second half (not settled)")
-        if not agree:
+        if not np.isfinite(half):
+            msgs.append(f"{name}: halves of the window too short for an interval (" + (a["message"] or b["message"]) + ")")
+        elif not agree:
             msgs.append(f"{name}: halves differ by {diff:.3g} > {half:.3g}")
         steady = steady and agree and per[name]["settled"]
     return {"method": f"MSER-{batch} (White 1997), latest over observables, >= min_spinup_s; halves of the "
