@@ -306,7 +306,8 @@ def spinup_end(t, observables: dict, min_spinup_s: float, confidence: float = 0.
         if not per[name]["settled"]:
             msgs.append(f"{name}: MSER minimum in the second half (not settled)")
         if not np.isfinite(half):
-            msgs.append(f"{name}: halves of the window too short for an interval (" + (a["message"] or b["message"]) + ")")
+            why = a["message"] or b["message"]
+            msgs.append(f"{name}: halves of the window too short for an interval ({why})")
         elif not agree:
             msgs.append(f"{name}: halves differ by {diff:.3g} > {half:.3g}")
         steady = steady and agree and per[name]["settled"]
