@@ -61,7 +61,7 @@ rule simulate_flow:
     priority: _runtime
     resources:
         mem_mb=2000,
-        runtime=_runtime,
+        runtime=_time_limit,
     params:
         lbmpipe=LBMPIPE,
     shell:
@@ -96,6 +96,6 @@ rule simulate_particles:
     priority: _runtime
     resources:
         mem_mb=3000,
-        runtime=_runtime,
+        runtime=_time_limit,
     script:
         "../scripts/simulate_case.py"

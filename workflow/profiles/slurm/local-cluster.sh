@@ -69,9 +69,12 @@ JobCompLoc=$DIR/jobcomp.log
 AccountingStorageType=accounting_storage/none
 # Finished jobs stay in squeue for 10 min: the plugin's squeue status polling reads them there.
 MinJobAge=600
-# Seconds between SIGTERM and SIGKILL at scancel or at the time limit: a simulation writes its
-# checkpoint on SIGTERM.
-KillWait=30
+# Seconds between SIGTERM and SIGKILL at scancel or at the time limit: a simulation finishes its
+# current sample interval and writes its checkpoint on SIGTERM; on a shared, overloaded test
+# machine (load 20 on 2 cores) one interval took over 2 minutes, against SLURM's default 30 s.
+KillWait=300
+# Jobs that give no --mem get this much per CPU (not the whole node).
+DefMemPerCPU=1000
 ReturnToService=2
 SlurmctldTimeout=30
 SlurmdTimeout=60
