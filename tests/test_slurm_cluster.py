@@ -205,7 +205,9 @@ def test_smoke_subset_through_sbatch_matches_the_local_run_and_a_cancelled_case_
     with open(log_path, "w") as log:
         proc = subprocess.Popen(cmd, cwd=cluster, env=env, stdout=log, stderr=subprocess.STDOUT, text=True)
         # Cancel the long case once its solver is in the time loop (it then finishes the sample
-        # interval it is in, writes its checkpoint and exits; the retry resumes from it).
+        # interval it is in, writes its checkpoint and exits; the retry resumes from it). The
+        # local run put the kernels in numba's cache, so the first interval does not compile
+        # them and ends well within the cluster's KillWait.
         cancelled = None
         deadline = time.time() + 1800
         while proc.poll() is None and time.time() < deadline:
