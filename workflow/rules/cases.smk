@@ -61,7 +61,7 @@ rule simulate_flow:
     priority: _runtime
     resources:
         mem_mb=2000,
-        runtime=_runtime,
+        runtime=_time_limit,
     params:
         # a particle-free case must complete: its flow is the reference of Fig. 10
         accept=["completed"],
@@ -99,6 +99,6 @@ rule simulate_particles:
     priority: _runtime
     resources:
         mem_mb=3000,
-        runtime=_runtime,
+        runtime=_time_limit,
     script:
         "../scripts/simulate_case.py"

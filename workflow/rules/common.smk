@@ -37,6 +37,19 @@ def _runtime(wildcards):
     return _estimate(wildcards.fidelity, wildcards.case)
 
 
+# Minutes a simulation job spends before its first step: the job's Snakemake, the imports and the
+# kernels (loaded from numba's cache, or compiled: about a minute cold). The cost estimate covers
+# the steps only; a smoke case's estimate is 1 minute, which on the local test cluster ran out
+# before the first step.
+STARTUP_MINUTES = 2
+
+
+def _time_limit(wildcards, attempt):
+    # The cluster's time limit (`runtime`, minutes): the estimate plus the start-up; a retry (after
+    # a time-limit kill, resuming from the checkpoint) gets twice as long.
+    return (_estimate(wildcards.fidelity, wildcards.case) + STARTUP_MINUTES) * attempt
+
+
 def _packing_priority(wildcards):
     # The longest case waiting for this packing (at the default level): priorities on the
     # simulations alone did not reach their packings, and the paper level's two longest cases
