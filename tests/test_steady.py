@@ -1,4 +1,4 @@
-"""Statistics of steady results (lbmpipe.steady) on synthetic series with a known answer: AR(1)
+"""Statistics of steady results (lbmpipe.reproduction.steady) on synthetic series with a known answer: AR(1)
 processes (known tau_int and mean), transients, several 'packings' with a real offset between them,
 rotational diffusion (known decay rate of the orientation correlation) and bodies that do or do
 not overtake each other."""
@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from scipy.signal import lfilter
 
-from lbmpipe import steady
+from lbmpipe.reproduction import steady
 
 
 def ar1(phi: float, n: int, rng, reps: int | None = None) -> np.ndarray:
