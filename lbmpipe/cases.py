@@ -1,7 +1,7 @@
 """The paper's cases as scenes: the case matrix of the pipeline's config turned into scene dicts.
 
 The Snakemake layer only names cases and fidelity levels; this module decides what a case means
-physically (NOTES.md "Parameters"): the 50 mm x 100 mm periodic pipe, the two flow rates with their
+physically (paper/reading.md "Parameters"): the 50 mm x 100 mm periodic pipe, the two flow rates with their
 Reynolds numbers, the particles (a dense random packing of one shape at 30 % or 50 %, collisions on
 or off), and how a fidelity level sets the lattice. Coarser levels keep the paper's Mach number
 (acoustic scaling, ``dt`` proportional to ``dx``), so that only the resolution changes; ``tau`` then
@@ -24,14 +24,14 @@ import yaml
 from .scene import Scene, SceneError
 
 PIPE = {"kind": "pipe", "diameter_mm": 50.0, "length_mm": 100.0}
-#: NOTES.md: Q = 1.577e-4 m^3/s at Re 9.4 ("LF"), 3.154e-4 m^3/s at Re 26 ("HF").
+#: paper/reading.md: Q = 1.577e-4 m^3/s at Re 9.4 ("LF"), 3.154e-4 m^3/s at Re 26 ("HF").
 FLOWS = {9.4: 1.577e-4, 26.0: 3.154e-4}
 
 
 def fidelity_numerics(fidelity: dict, reynolds: float | None = None) -> dict:
     """Scene ``numerics`` for a fidelity level: ``dx_mm`` and ``dt_s`` (or ``dt_per_mm_s``); at
     Re 26 the time step is multiplied by ``re26_dt_factor`` (default 1): the paper's dt gives a
-    centre-line Mach number of 0.56 there; 0.5 halves it (Mach 0.28, NOTES.md's third row)."""
+    centre-line Mach number of 0.56 there; 0.5 halves it (Mach 0.28, paper/reading.md's third row)."""
     num = {k: v for k, v in fidelity.get("numerics", {}).items()}
     dx = float(fidelity["dx_mm"])
     num["dx_mm"] = dx

@@ -30,7 +30,7 @@ from typing import NamedTuple
 
 N_EQUATIONS = 21
 
-#: The paper's equations as stated in NOTES.md ("Model", "Collision model"), Markdown with inline code.
+#: The paper's equations as the project reads them (paper/reading.md, section 1), Markdown with inline code.
 EQUATIONS: dict[int, str] = {
     1: "`∂f_i/∂t + e_i · ∇f_i = Ω_i` (lattice Boltzmann equation)",
     2: "`Ω_i = -(f_i - f_i^eq) / τ` (BGK collision)",
@@ -85,7 +85,7 @@ PAPER_CAPTIONS: dict[str, str] = {
           "concentration, 26 in Reynolds number, 16 mm×16 mm in size)",
 }
 
-#: Our caption when ``lbmpipe.figures.FIGURE_CAPTIONS`` has none (NOTES.md, "Figures to regenerate").
+#: Our caption when ``lbmpipe.figures.FIGURE_CAPTIONS`` has none (paper/reading.md, section 3).
 FALLBACK_CAPTIONS: dict[str, str] = {
     "3": "Snapshot of the particles in the pipe (case in the file name).",
     "4": "Mean |angular velocity| (rad/s) about x, y, z: cylinders 16x16 and 16x24 mm, 30 %, Re 26.",
@@ -102,11 +102,11 @@ FALLBACK_CAPTIONS: dict[str, str] = {
 #: ... reach a relatively steady state"), per case.
 PAPER_HOURS_PER_CASE = 24.0
 
-#: Where the paper is silent or inconsistent and the code decides (NOTES.md); ``{...}`` fields are
+#: Where the paper is silent or inconsistent and the code decides (paper/reading.md); ``{...}`` fields are
 #: filled from the config so that no number is typed here.
 DECISIONS: list[tuple[str, str]] = [
     ("Viscosity", "The two flow rates imply different viscosities; ν is taken from the Reynolds number "
-                  "(`Re = U D / ν`, `U = Q / A`), not from a fluid property (NOTES.md, Parameters)."),
+                  "(`Re = U D / ν`, `U = Q / A`), not from a fluid property (paper/reading.md, D2)."),
     ("Driving", "Periodic inlet and outlet: the flow is driven by a body force (pressure gradient) that a "
                 "controller adjusts to hold the mixture flow rate Q (`lbmpipe.effects`)."),
     ("Time step at Re 26", "The paper's dt gives a centre-line Mach number near the limit of the scheme "
