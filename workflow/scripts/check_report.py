@@ -15,8 +15,7 @@ import sys
 from pathlib import Path
 
 #: what docutils leaves in rendered HTML where it met a problem (HTML or JSON-escaped HTML)
-MARKERS = re.compile(r"System Message|system-message|class=\\?\"problematic\\?\"|Undefined substitution"
-                     r"|Unknown interpreted text role|Unknown directive type")
+MARKERS = re.compile(r"System Message: \w+/\d|class=\\?\"problematic\\?\"")
 
 
 def docutils_problems(html: str, context: int = 80) -> list[str]:
