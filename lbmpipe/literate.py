@@ -568,6 +568,12 @@ def build_checked_document(repo_root: Path, fidelity: str, config: dict,
 # minimal Markdown -> HTML (the subset the template emits)
 
 
+def _href(target: str) -> str:
+    """A link to a generated document (``reproduction_<level>.md``) goes to the HTML written beside
+    it; other Markdown files (``paper/reading.md``) have no HTML and keep their link."""
+    return target[:-3] + ".html" if re.search(r"(^|/)reproduction_[^/]*[.]md$", target) else target
+
+
 def _inline(s: str) -> str:
     parts = re.split(r"(`[^`]*`)", s)
     out = []
@@ -578,7 +584,7 @@ def _inline(s: str) -> str:
         p = html.escape(p, quote=False)
         p = re.sub(r'!\[([^\]]*)\]\(([^)\s]+)\)', r'<img src="\2" alt="\1" style="max-width:100%">', p)
         p = re.sub(r'\[([^\]]*)\]\(([^)\s]+)(?:\s+"([^"]*)")?\)',
-                   lambda m: f'<a href="{m.group(2).replace(".md", ".html") if m.group(2).endswith(".md") else m.group(2)}"'
+                   lambda m: f'<a href="{_href(m.group(2))}"'
                              + (f' title="{m.group(3)}"' if m.group(3) else "") + f">{m.group(1)}</a>", p)
         p = re.sub(r"\*\*([^*]+)\*\*", r"<strong>\1</strong>", p)
         p = re.sub(r"(?<![\w*])\*([^*\s][^*]*)\*(?![\w*])", r"<em>\1</em>", p)
