@@ -54,8 +54,8 @@ def test_outside_path_pattern_catches_the_ways_a_path_leaves_the_repository():
 def test_no_tracked_file_names_a_path_outside_the_repository():
     problems = []
     for path in tracked_files():
-        if path.suffix in SKIP_SUFFIXES or not path.is_file():
-            continue
+        if path.suffix in SKIP_SUFFIXES or not path.is_file() or path == Path(__file__).resolve():
+            continue  # this file spells the patterns out on purpose
         try:
             text = path.read_text(encoding="utf-8")
         except UnicodeDecodeError:
