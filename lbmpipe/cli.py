@@ -137,7 +137,7 @@ def format_closing_summary(summary: dict, out: Path | str) -> str:
     lines = [
         f"run {status}: {steps:,} of {asked:,} steps, {float(summary.get('simulated_seconds', 0.0)):.4g} s simulated",
         f"  wall time {_duration(wall)} stepping + {_duration(setup)} set-up, "
-        f"{float(summary.get('mlups', 0.0)):.1f} MLUPS" + (f" on {threads} thread{'s' if threads != 1 else ''}"
+        f"{float(summary.get('mlups', 0.0)):.3g} MLUPS" + (f" on {threads} thread{'s' if threads != 1 else ''}"
                                                            if threads else ""),
     ]
     files = summary.get("files") or []
