@@ -1,4 +1,5 @@
-"""Command line: ``lbmpipe check SCENE...``, ``lbmpipe run SCENE --out DIR`` and ``lbmpipe stability``.
+"""Command line: ``lbmpipe check SCENE...``, ``lbmpipe run SCENE --out DIR``, ``lbmpipe stability`` and
+``lbmpipe document``.
 
 Exit status: 0 success; 2 bad scene, bad arguments or a checkpoint of another scene; 3 output
 directory already holds a finished run (``summary.json``) and ``--force`` was not given (unless
@@ -126,6 +127,24 @@ def format_report(scene: Scene, params: LatticeParams, source: str = "", cost_mo
     return "\n".join(text)
 
 
+def format_closing_summary(summary: dict, out: Path | str) -> str:
+    """The lines ``lbmpipe run`` ends with: status, steps and simulated time, wall time, MLUPS and
+    where the outputs are, from the run's summary dict (``summary.json``)."""
+    status = summary.get("status", "unknown")
+    steps, asked = summary.get("steps", 0), summary.get("steps_requested", summary.get("steps", 0))
+    wall, setup = float(summary.get("wall_seconds", 0.0)), float(summary.get("setup_seconds", 0.0))
+    threads = summary.get("threads")
+    lines = [
+        f"run {status}: {steps:,} of {asked:,} steps, {float(summary.get('simulated_seconds', 0.0)):.4g} s simulated",
+        f"  wall time {_duration(wall)} stepping + {_duration(setup)} set-up, "
+        f"{float(summary.get('mlups', 0.0)):.3g} MLUPS" + (f" on {threads} thread{'s' if threads != 1 else ''}"
+                                                           if threads else ""),
+    ]
+    files = summary.get("files") or []
+    lines.append(f"  outputs in {out}: " + ", ".join(["summary.json", *files]))
+    return "\n".join(lines)
+
+
 def _load(path: str) -> tuple[Scene, LatticeParams]:
     scene = load_scene(path)
     return scene, derive(scene)
@@ -190,6 +209,8 @@ def _cmd_run(args) -> int:
         print("interrupted", file=sys.stderr)
         return EXIT_INTERRUPTED
     status = (summary or {}).get("status")
+    if summary and not args.quiet:
+        print(format_closing_summary(summary, out))
     if status == "completed":
         return EXIT_OK
     if status == "interrupted":
@@ -240,16 +261,39 @@ def _cmd_document(args) -> int:
     return EXIT_FAILED if stale else EXIT_OK
 
 
+#: every command with its arguments and a one-line description; ``lbmpipe --help`` lists them all
+COMMANDS = {
+    "check": ("SCENE...", "validate scene files and print the derived lattice parameters"),
+    "run": ("SCENE --out DIR", "run a scene: progress bar, outputs in DIR, closing summary"),
+    "stability": ("", "run the stability suite (lbmpipe.stability) and print or write its table"),
+    "document": ("", "rebuild paper/reproduction_<level>.md/.html from results/<level>/ (no case is rerun)"),
+}
+
+
+def _description() -> str:
+    width = max(len(f"{name} {args}".strip()) for name, (args, _) in COMMANDS.items()) + 2
+    rows = "\n".join(f"  {f'{name} {args}'.strip():<{width}}{text}" for name, (args, text) in COMMANDS.items())
+    return ("lbmpipe: lattice Boltzmann runs of rigid particles in pipe and box flows, from YAML scene\n"
+            "files in physical units (docs/scene.md).\n\ncommands:\n" + rows +
+            "\n\n'lbmpipe COMMAND --help' gives the options of one command.")
+
+
+EPILOG = ("exit status: 0 success; 2 bad scene or arguments; 3 DIR already holds a finished run\n"
+          "(no --force); 4 the run did not complete; 130 interrupted.")
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="lbmpipe", description=__doc__.splitlines()[0])
-    sub = parser.add_subparsers(dest="command", required=True)
-    p_check = sub.add_parser("check", help="validate scene files and print the derived lattice parameters")
+    parser = argparse.ArgumentParser(prog="lbmpipe", usage="lbmpipe [-h] COMMAND ...", description=_description(),
+                                     epilog=EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
+    # the commands are listed in the description; argparse's own list would repeat them
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND", help=argparse.SUPPRESS)
+    p_check = sub.add_parser("check", help=COMMANDS["check"][1], description=COMMANDS["check"][1])
     p_check.add_argument("scenes", nargs="+", metavar="SCENE", help="YAML scene file(s); see docs/scene.md")
     p_check.add_argument("--cost-model", default=None, metavar="JSON",
                          help="cost model of the accuracy-cost study (default: the first of "
                               + ", ".join(COST_MODEL_PATHS) + " that exists)")
     p_check.set_defaults(func=_cmd_check)
-    p_run = sub.add_parser("run", help="run a scene")
+    p_run = sub.add_parser("run", help=COMMANDS["run"][1], description=COMMANDS["run"][1])
     p_run.add_argument("scene", metavar="SCENE", help="YAML scene file")
     p_run.add_argument("--out", required=True, metavar="DIR", help="output directory")
     p_run.add_argument("--force", action="store_true", help="overwrite a DIR that already holds summary.json")
@@ -264,7 +308,7 @@ def build_parser() -> argparse.ArgumentParser:
     p_run.add_argument("--keep-checkpoint", action="store_true",
                        help="keep the checkpoint (with the final state) when the run completes")
     p_run.set_defaults(func=_cmd_run)
-    p_st = sub.add_parser("stability", help="run the stability suite (lbmpipe.reproduction.stability) and print/write its table")
+    p_st = sub.add_parser("stability", help=COMMANDS["stability"][1], description=COMMANDS["stability"][1])
     p_st.add_argument("--fidelity", default="smoke", choices=["smoke", "quick", "paper"],
                       help="lattice spacing and step counts of the suite (default smoke)")
     p_st.add_argument("--cases", nargs="+", default=None, metavar="CASE", help="run only these cases")
@@ -272,8 +316,7 @@ def build_parser() -> argparse.ArgumentParser:
     p_st.add_argument("--threads", type=int, default=1, help="numba threads (default 1)")
     p_st.add_argument("--quiet", action="store_true")
     p_st.set_defaults(func=_cmd_stability)
-    p_doc = sub.add_parser("document", help="rebuild paper/reproduction_<level>.md/.html from results/<level>/ "
-                                            "(no case is rerun)")
+    p_doc = sub.add_parser("document", help=COMMANDS["document"][1], description=COMMANDS["document"][1])
     p_doc.add_argument("--fidelity", default="paper", help="results level to read (default paper)")
     p_doc.add_argument("--root", default=".", help="repository root (default: current directory)")
     p_doc.set_defaults(func=_cmd_document)

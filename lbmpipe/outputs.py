@@ -10,6 +10,7 @@ import dataclasses
 import json
 import math
 import platform
+import re
 import subprocess
 from pathlib import Path
 
@@ -19,17 +20,37 @@ import pandas as pd
 SUMMARY = "summary.json"
 
 
+def _sim_time(step: int, dt_s: float) -> str:
+    return f"t={step * dt_s:.3f} s"
+
+
 def progress_text(step: int, dt_s: float, n_fluid: int, elapsed: float) -> str:
     mlups = n_fluid * step / elapsed / 1e6 if elapsed > 0 else 0.0
-    return f"t={step * dt_s:.3f} s, {mlups:.1f} MLUPS"
+    return f"{_sim_time(step, dt_s)}, {mlups:.1f} MLUPS"
 
 
-def progress_bar(total: int, dt_s: float, n_fluid: int, enabled: bool = True):
-    """tqdm bar over steps (tqdm supplies the ETA); the postfix shows simulated time and MLUPS."""
+_SIM_TIME = re.compile(r"^t=\S+ s(, )?")
+
+
+def progress_bar(total: int, dt_s: float, n_fluid: int, enabled: bool = True, **tqdm_options):
+    """tqdm bar over steps (tqdm supplies the ETA); the postfix shows simulated time and MLUPS.
+
+    The run loop sets the postfix (``progress_text``) at the samples only, while tqdm redraws the
+    step count at every ``update``; so the bar writes the simulated time of the count it shows at
+    every draw, and keeps the MLUPS of the last sample. ``tqdm_options`` override tqdm's (``file``,
+    ``mininterval``, ...)."""
     from tqdm import tqdm
 
-    return tqdm(total=total, unit="step", disable=not enabled, dynamic_ncols=True, mininterval=0.5,
-                desc="lbmpipe")
+    class StepBar(tqdm):
+        @property
+        def format_dict(self):
+            d = super().format_dict
+            rest = _SIM_TIME.sub("", d.get("postfix") or "")
+            d["postfix"] = _sim_time(self.n, dt_s) + (f", {rest}" if rest else "")
+            return d
+
+    options = dict(unit="step", dynamic_ncols=True, mininterval=0.5, desc="lbmpipe") | tqdm_options
+    return StepBar(total=total, disable=not enabled, **options)
 
 
 def write_flow_rate(out_dir: Path, series, units, scene) -> str:

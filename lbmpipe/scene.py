@@ -233,8 +233,8 @@ class Collisions(_Model):
     enabled: bool = Field(True, description="Resolve collisions. `false` lets particles pass through each other and the wall "
                           "(for a run without interaction that keeps the particles in the pipe, use `pairs: false`).")
     pairs: bool = Field(True, description="Particle-particle collisions. `false` keeps only the contacts with the walls: "
-                        "particles pass through each other but stay in the pipe (NOTES.md claim 14's runs without "
-                        "interaction).")
+                        "particles pass through each other but stay in the pipe (the runs without interaction of "
+                        "claim 14, paper/reading.md).")
     restitution: float = Field(1.0, ge=0, le=1, description="Restitution k of Eq. (17); 1 = elastic, the paper's.")
     contact_gap_dx: float = Field(
         1.0, ge=0,

@@ -150,6 +150,27 @@ def test_snapshots_draw_one_png_per_particle_case_including_unpackable(tmp_path)
     assert all(p.stat().st_size > 1000 for p in out)
 
 
+@pytest.mark.parametrize("shape", ["cylinder", "cube"])
+def test_snapshot_has_few_ticks_on_the_short_axes_and_the_colour_bar_beside_the_pipe(tmp_path, shape):
+    import matplotlib.pyplot as plt
+
+    _snapshot_case(tmp_path / "case", shape, 5)
+    fig = F.snapshot_figure(tmp_path / "case", title="case")
+    ax, cax = fig.axes[0], fig.axes[-1]
+    renderer = fig.canvas.get_renderer()
+    fig.canvas.draw()
+    # the x and y axes are foreshortened to a fifth of the pipe's height: five labels there
+    # collided, three fit (mplot3d does not report where it draws tick labels, so count them)
+    shown = {axis.axis_name: [t.get_text() for t in axis.get_ticklabels() if t.get_visible() and t.get_text()]
+             for axis in (ax.xaxis, ax.yaxis, ax.zaxis)}
+    assert 2 <= len(shown["x"]) <= 3 and 2 <= len(shown["y"]) <= 3 and len(shown["z"]) >= 3, shown
+    # no empty band: the colour bar starts within 8 % of the figure width of the z axis's label
+    z_right = ax.zaxis.get_tightbbox(renderer).x1 / fig.bbox.width
+    bar_left = cax.get_window_extent(renderer).x0 / fig.bbox.width
+    assert cax is not ax and 0.0 < bar_left - z_right < 0.08
+    plt.close(fig)
+
+
 def test_cylinder_mesh_is_closed_around_its_axis_and_cube_faces_lie_on_the_cube():
     side, caps = F._cylinder_faces(8.0, 16.0, n=12)
     assert side.shape == (12, 4, 3) and caps.shape == (2, 12, 3)

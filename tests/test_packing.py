@@ -28,7 +28,7 @@ def test_particle_counts_reproduce_the_notes_table():
         kind, h = PAPER_SHAPES[name]
         n = count_for_concentration(kind, h, R, L, frac)
         if (name, frac) == ("cylinder 8x8", 0.3):
-            # 146.48 particles: nearest integer 146; NOTES.md has 147 (volume rounded to 402 mm^3).
+            # 146.48 particles: nearest integer 146; paper/reading.md has 147 (volume rounded to 402 mm^3).
             # Both are within 0.11 % of 30 %.
             assert n == 146
             assert abs(achieved_concentration(kind, h, n_notes, R, L) - frac) < 1.1e-3

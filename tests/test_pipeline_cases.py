@@ -56,7 +56,7 @@ def test_re26_dt_factor_halves_the_time_step_and_keeps_the_reynolds_number():
     assert s26.numerics.dt_s == pytest.approx(2.5e-3)
     p26 = derive(s26)
     assert p26.reynolds == pytest.approx(26.0, rel=1e-6)
-    assert p26.mach_max == pytest.approx(0.28, abs=0.01)  # NOTES.md: Re 26 at dt 0.5 ms
+    assert p26.mach_max == pytest.approx(0.28, abs=0.01)  # paper/reading.md: Re 26 at dt 0.5 ms
 
 
 def test_nocoll_case_switches_pair_collisions_off_keeps_the_wall_and_the_packing(tmp_path):
@@ -68,7 +68,7 @@ def test_nocoll_case_switches_pair_collisions_off_keeps_the_wall_and_the_packing
 
 def test_packing_file_round_trip_reproduces_the_packed_bodies(tmp_path):
     info = cases.pack_case(CONFIG, "cube8_c30_s1", tmp_path / "p.csv", tmp_path / "p.json")
-    assert info["status"] == "packed" and info["count"] == 115  # NOTES.md: 115 cubes of 8 mm at 30 %
+    assert info["status"] == "packed" and info["count"] == 115  # paper/reading.md: 115 cubes of 8 mm at 30 %
     assert abs(info["concentration_achieved"] - 0.30) < 0.002
     assert info["max_overlap_mm"] <= 1e-3
     scene_path = tmp_path / "case" / "scene.yaml"

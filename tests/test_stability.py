@@ -62,7 +62,7 @@ def test_every_case_is_a_valid_scene_with_the_papers_mach_numbers(dx):
         for g in (data.get("particles") or {}).get("packed", []):
             assert "file" not in g
         params = derive(Scene.model_validate(data))
-        expected = {9.4: 0.28, 26.0: 0.56}[case.reynolds] * case.dt_factor  # NOTES.md's table
+        expected = {9.4: 0.28, 26.0: 0.56}[case.reynolds] * case.dt_factor  # paper/reading.md's table
         assert params.mach_max == pytest.approx(expected, rel=0.02), case.name
         if case.tau is not None:
             assert params.tau == pytest.approx(case.tau, rel=1e-9)

@@ -10,7 +10,7 @@ from lbmpipe.units import CS, Units, derive
 
 
 def pipe_scene(reynolds: float, flow_rate: float, dt_s: float = 1e-3, mach_limit: float = 0.6, **numerics) -> Scene:
-    """The paper's particle-free pipe (NOTES.md: D = 50 mm, L = 100 mm, dx = 1 mm)."""
+    """The paper's particle-free pipe (paper/reading.md: D = 50 mm, L = 100 mm, dx = 1 mm)."""
     return Scene.model_validate({
         "name": "pipe",
         "domain": {"kind": "pipe", "diameter_mm": 50.0, "length_mm": 100.0},
@@ -36,7 +36,7 @@ def channel_scene(**overrides) -> Scene:
     return Scene.model_validate(data)
 
 
-# NOTES.md "Derived" table: (Re, Q, dt) -> U (m/s), nu (m^2/s), u_mean, u_max, Ma, tau, with the
+# paper/reading.md "Derived" table: (Re, Q, dt) -> U (m/s), nu (m^2/s), u_mean, u_max, Ma, tau, with the
 # number of digits printed there.
 NOTES_TABLE = [
     (9.4, 1.577e-4, 1e-3, "0.0803", "4.27e-4", "0.080", "0.161", "0.28", "1.78"),

@@ -64,7 +64,7 @@ ROTATION_WEIGHT = 0.5
 MANIFOLD_TOL = 0.1
 
 # The paper's shapes (dimensions in mm = lattice units at dx = 1 mm) and the particle counts of
-# NOTES.md for its 50 mm x 100 mm pipe.
+# paper/reading.md for its 50 mm x 100 mm pipe.
 PAPER_SHAPES = {
     "cylinder 8x8": (CYLINDER, (4.0, 4.0, 4.0)),
     "cylinder 8x16": (CYLINDER, (4.0, 4.0, 8.0)),
@@ -128,9 +128,9 @@ def count_for_concentration(kind: int, h, radius: float, length: float, fraction
     """Number of particles closest to the solid volume ``fraction`` of the pipe:
     ``round(fraction * pi R^2 L / V_particle)``.
 
-    This reproduces the counts of NOTES.md except cylinders 8x8 at 30 %: 146.48 rounds to 146
-    (29.90 %); NOTES.md lists 147 (30.11 %), which follows from a particle volume rounded to
-    402 mm^3. The counts of NOTES.md are ``PAPER_COUNTS``."""
+    This reproduces the counts of the paper's reading (paper/reading.md, ``PAPER_COUNTS``) except
+    cylinders 8x8 at 30 %: 146.48 rounds to 146 (29.90 %); ``PAPER_COUNTS`` has 147 (30.11 %), which
+    follows from a particle volume rounded to 402 mm^3."""
     if not (0.0 < fraction < 1.0):
         raise ValueError(f"fraction must be in (0, 1), got {fraction}")
     return int(round(fraction * pipe_volume(radius, length) / volume(kind, h)))

@@ -1,7 +1,7 @@
 """The paper's cases as scenes: the case matrix of the pipeline's config turned into scene dicts.
 
 The Snakemake layer only names cases and fidelity levels; this module decides what a case means
-physically (NOTES.md "Parameters"): the paper's pipe and flow rates (``pipe``), the particles (a
+physically (paper/reading.md "Parameters"): the paper's pipe and flow rates (``pipe``), the particles (a
 dense random packing of one shape at 30 % or 50 %, collisions on or off), and how a fidelity level
 sets the lattice (``pipe.time_step``: the paper's Mach number at every level).
 
@@ -26,7 +26,7 @@ from .pipe import DT_PER_MM_S, FLOWS, PIPE, pipe_scene, time_step
 def fidelity_numerics(fidelity: dict, reynolds: float | None = None) -> dict:
     """Scene ``numerics`` for a fidelity level: ``dx_mm`` and ``dt_s`` (or ``dt_per_mm_s``); at
     Re 26 the time step is multiplied by ``re26_dt_factor`` (default 1): the paper's dt gives a
-    centre-line Mach number of 0.56 there; 0.5 halves it (Mach 0.28, NOTES.md's third row)."""
+    centre-line Mach number of 0.56 there; 0.5 halves it (Mach 0.28, paper/reading.md's third row)."""
     num = {k: v for k, v in fidelity.get("numerics", {}).items()}
     dx = float(fidelity["dx_mm"])
     num["dx_mm"] = dx

@@ -1,4 +1,4 @@
-"""The paper's 14 claims (NOTES.md), each a statistic computed from the results tables of one
+"""The paper's 14 claims (paper/reading.md), each a statistic computed from the results tables of one
 fidelity level, with a verdict.
 
 Inputs under ``results/<fid>/``: ``tables/angular_velocity.csv`` (mean |Omega_a| per case with its
@@ -65,7 +65,7 @@ CUBE_UNIFORM_TOLERANCE = 0.5
 #: claim 13: "greatly" = relative L2 change at least this, and this many times the particle-free error
 PROFILE_CHANGE_MIN = 0.10
 PROFILE_NOISE_FACTOR = 3.0
-#: the pair of claim 13 and of claim 14 (config names, NOTES.md)
+#: the pair of claim 13 and of claim 14 (config names, paper/reading.md)
 PROFILE_CASE, PROFILE_REFERENCE = "cyl16x16_c30_re26", "flow_re26"
 ALIGN_CASE, ALIGN_NOCOLL_CASE = "cyl8x16_c30_re9.4", "cyl8x16_c30_re9.4_nocoll"
 #: particle-size resolution (lattice spacings) below which a contradiction is blamed on the lattice

@@ -405,13 +405,26 @@ def snapshot(case_dir: Path, stem: Path, title: str = "") -> Path:
     drawn as a polygon mesh in its position and orientation, coloured by its angle to the pipe
     axis. Writes ``stem``.png only and returns it. A case without particles to draw (not run,
     not packable) gets a PNG saying so."""
+    stem = Path(stem)
+    fig = snapshot_figure(case_dir, title)
+    out = stem.parent / f"{stem.name}.png"
+    out.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(out, dpi=150, bbox_inches="tight")
+    plt.close(fig)
+    return out
+
+
+def snapshot_figure(case_dir: Path, title: str = ""):
+    """The figure of :func:`snapshot`, not saved: the 3-D axes first, the colour bar's (if any) second."""
     from mpl_toolkits.mplot3d.art3d import Poly3DCollection
 
     from . import statistics as st
 
-    case_dir, stem = Path(case_dir), Path(stem)
-    fig = plt.figure(figsize=(4.6, 6.4))
-    ax = fig.add_subplot(projection="3d")
+    case_dir = Path(case_dir)
+    # The tall pipe fills a narrow axes; the colour bar gets its own axes right beside it (a
+    # colorbar() of the 3-D axes sits beyond the axes' square box and leaves an empty band).
+    fig = plt.figure(figsize=(4.0, 6.4))
+    ax = fig.add_axes((0.0, 0.02, 0.78, 0.9), projection="3d")
     R, L = 25.0, 100.0
     th = np.linspace(0, 2 * np.pi, 97)
     for z in (0.0, L):
@@ -427,6 +440,7 @@ def snapshot(case_dir: Path, stem: Path, title: str = "") -> Path:
             pass
     df = pd.read_parquet(pq) if pq.exists() else pd.DataFrame()
     note = ""
+    colour_bar = None
     if df.empty or not static.exists():
         note = _status_text(summary.get("status", "not run")) if summary.get("status") != "completed" else "no samples"
     else:
@@ -460,10 +474,8 @@ def snapshot(case_dir: Path, stem: Path, title: str = "") -> Path:
             ax.add_collection3d(coll, autolim=False)
         except TypeError:  # matplotlib < 3.10
             ax.add_collection3d(coll)
-        sm = plt.cm.ScalarMappable(cmap=cmap, norm=plt.Normalize(0, vmax))
-        cb = fig.colorbar(sm, ax=ax, shrink=0.5, pad=0.08)
-        cb.set_label("cylinder axis to pipe axis (deg)" if is_cyl.all() else "nearest cube axis to pipe axis (deg)",
-                     fontsize=8)
+        colour_bar = (plt.cm.ScalarMappable(cmap=cmap, norm=plt.Normalize(0, vmax)),
+                      "cylinder axis to pipe axis (deg)" if is_cyl.all() else "nearest cube axis to pipe axis (deg)")
         title = (title + "\n" if title else "") + f"t = {t_last:.2f} s, {len(last)} particles"
     if note:
         ax.text(0.0, 0.0, 0.5 * L, note, ha="center", fontsize=12, color="0.3", style="italic")
@@ -474,15 +486,23 @@ def snapshot(case_dir: Path, stem: Path, title: str = "") -> Path:
     ax.set_xlabel("x (mm)", fontsize=8)
     ax.set_ylabel("y (mm)", fontsize=8)
     ax.set_zlabel("z (mm)", fontsize=8)
-    ax.tick_params(labelsize=6)
+    # few ticks: the foreshortened x and y axes have room for three labels each without overlap
+    ax.set_xticks([-20, 0, 20])
+    ax.set_yticks([-20, 0, 20])
+    ax.set_zticks([0, 20, 40, 60, 80, 100])
+    ax.tick_params(labelsize=6, pad=0)
     ax.view_init(elev=12, azim=-70)
     if title:
         ax.set_title(title, fontsize=8)
-    out = stem.parent / f"{stem.name}.png"
-    out.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(out, dpi=150, bbox_inches="tight")
-    plt.close(fig)
-    return out
+    if colour_bar is not None:
+        # right beside the z axis's label, known after a draw (the 3-D axes' own box is wider than the
+        # pipe it draws)
+        fig.canvas.draw()
+        drawn = ax.zaxis.get_tightbbox(fig.canvas.get_renderer()).transformed(fig.transFigure.inverted())
+        cb = fig.colorbar(colour_bar[0], cax=fig.add_axes((min(drawn.x1 + 0.04, 0.82), 0.3, 0.035, 0.36)))
+        cb.ax.tick_params(labelsize=7)
+        cb.set_label(colour_bar[1], fontsize=8)
+    return fig
 
 
 def snapshots(fid_dir: Path, cases: dict, fidelity: str | None = None) -> list[Path]:

@@ -30,7 +30,7 @@ from typing import NamedTuple
 
 N_EQUATIONS = 21
 
-#: The paper's equations as stated in NOTES.md ("Model", "Collision model"), Markdown with inline code.
+#: The paper's equations as the project reads them (paper/reading.md, section 1), Markdown with inline code.
 EQUATIONS: dict[int, str] = {
     1: "`∂f_i/∂t + e_i · ∇f_i = Ω_i` (lattice Boltzmann equation)",
     2: "`Ω_i = -(f_i - f_i^eq) / τ` (BGK collision)",
@@ -85,7 +85,7 @@ PAPER_CAPTIONS: dict[str, str] = {
           "concentration, 26 in Reynolds number, 16 mm×16 mm in size)",
 }
 
-#: Our caption when ``lbmpipe.reproduction.figures.FIGURE_CAPTIONS`` has none (NOTES.md, "Figures to regenerate").
+#: Our caption when ``lbmpipe.reproduction.figures.FIGURE_CAPTIONS`` has none (paper/reading.md, section 3).
 FALLBACK_CAPTIONS: dict[str, str] = {
     "3": "Snapshot of the particles in the pipe (case in the file name).",
     "4": "Mean |angular velocity| (rad/s) about x, y, z: cylinders 16x16 and 16x24 mm, 30 %, Re 26.",
@@ -102,11 +102,11 @@ FALLBACK_CAPTIONS: dict[str, str] = {
 #: ... reach a relatively steady state"), per case.
 PAPER_HOURS_PER_CASE = 24.0
 
-#: Where the paper is silent or inconsistent and the code decides (NOTES.md); ``{...}`` fields are
+#: Where the paper is silent or inconsistent and the code decides (paper/reading.md); ``{...}`` fields are
 #: filled from the config so that no number is typed here.
 DECISIONS: list[tuple[str, str]] = [
     ("Viscosity", "The two flow rates imply different viscosities; ν is taken from the Reynolds number "
-                  "(`Re = U D / ν`, `U = Q / A`), not from a fluid property (NOTES.md, Parameters)."),
+                  "(`Re = U D / ν`, `U = Q / A`), not from a fluid property (paper/reading.md, D2)."),
     ("Driving", "Periodic inlet and outlet: the flow is driven by a body force (pressure gradient) that a "
                 "controller adjusts to hold the mixture flow rate Q (`lbmpipe.effects`)."),
     ("Time step at Re 26", "The paper's dt gives a centre-line Mach number near the limit of the scheme "
@@ -568,6 +568,12 @@ def build_checked_document(repo_root: Path, fidelity: str, config: dict,
 # minimal Markdown -> HTML (the subset the template emits)
 
 
+def _href(target: str) -> str:
+    """A link to a generated document (``reproduction_<level>.md``) goes to the HTML written beside
+    it; other Markdown files (``paper/reading.md``) have no HTML and keep their link."""
+    return target[:-3] + ".html" if re.search(r"(^|/)reproduction_[^/]*[.]md$", target) else target
+
+
 def _inline(s: str) -> str:
     parts = re.split(r"(`[^`]*`)", s)
     out = []
@@ -578,7 +584,7 @@ def _inline(s: str) -> str:
         p = html.escape(p, quote=False)
         p = re.sub(r'!\[([^\]]*)\]\(([^)\s]+)\)', r'<img src="\2" alt="\1" style="max-width:100%">', p)
         p = re.sub(r'\[([^\]]*)\]\(([^)\s]+)(?:\s+"([^"]*)")?\)',
-                   lambda m: f'<a href="{m.group(2).replace(".md", ".html") if m.group(2).endswith(".md") else m.group(2)}"'
+                   lambda m: f'<a href="{_href(m.group(2))}"'
                              + (f' title="{m.group(3)}"' if m.group(3) else "") + f">{m.group(1)}</a>", p)
         p = re.sub(r"\*\*([^*]+)\*\*", r"<strong>\1</strong>", p)
         p = re.sub(r"(?<![\w*])\*([^*\s][^*]*)\*(?![\w*])", r"<em>\1</em>", p)

@@ -1,5 +1,5 @@
 """The paper's pipe flow, defined once: the 50 mm x 100 mm periodic pipe, its two flow rates with
-their Reynolds numbers, and the time-step rule (NOTES.md "Parameters").
+their Reynolds numbers, and the time-step rule (paper/reading.md "Parameters").
 
 The paper runs dx = 1 mm with dt = 1 ms. Coarser or finer lattices keep its Mach number by
 acoustic scaling (``dt`` proportional to ``dx``), so only the resolution changes; ``tau`` then
@@ -12,7 +12,7 @@ from __future__ import annotations
 import copy
 
 PIPE = {"kind": "pipe", "diameter_mm": 50.0, "length_mm": 100.0}
-#: NOTES.md: Q = 1.577e-4 m^3/s at Re 9.4 ("LF"), 3.154e-4 m^3/s at Re 26 ("HF").
+#: paper/reading.md: Q = 1.577e-4 m^3/s at Re 9.4 ("LF"), 3.154e-4 m^3/s at Re 26 ("HF").
 FLOWS = {9.4: 1.577e-4, 26.0: 3.154e-4}
 #: the paper's dt per mm of dx (dx = 1 mm, dt = 1 ms)
 DT_PER_MM_S = 1.0e-3

@@ -4,7 +4,7 @@ checked against stated invariants; the table ``results/<fid>/tables/stability.cs
 Cases (``suite``), all in the paper's pipe (50 mm x 100 mm, periodic in z, flow-rate driving, D3Q15,
 half-way bounce-back) at a lattice spacing ``dx`` with acoustic scaling: the paper's
 ``dt = 1 ms`` at ``dx = 1 mm`` becomes ``dt = 1e-3 s per mm of dx``, which keeps the paper's
-lattice velocities and Mach numbers at any ``dx`` (NOTES.md "Parameters"):
+lattice velocities and Mach numbers at any ``dx`` (paper/reading.md "Parameters"):
 
 * the particle-free flow at Re 26 with the paper's dt (centre-line Mach 0.56), BGK and TRT, and
   with dt halved (Mach 0.28, the pipeline's setting);

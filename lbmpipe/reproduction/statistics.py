@@ -1,6 +1,6 @@
 """Per-case statistics of the particle runs and the aggregated tables behind the paper's figures.
 
-Angular velocity (Figs. 4-7). The paper does not define its statistic; we use (NOTES.md) the
+Angular velocity (Figs. 4-7). The paper does not define its statistic; we use (paper/reading.md) the
 mean of ``|Omega_a|``, ``a`` in {x, y, z}, LAB-frame components, over all free particles and all
 sampled times ``t > spinup_s``. Its 95 % confidence interval comes from batch means of the
 particle-averaged time series ``m_a(t) = <|Omega_a|>_particles(t)``: the samples of one run are

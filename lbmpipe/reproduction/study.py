@@ -10,7 +10,7 @@ wall, float64), plus optional combinations (e.g. TRT + Bouzidi at every ``dx``).
 References, each giving one error per run:
 
 ``pipe``
-    The particle-free pipe at Re 9.4 (the paper's "LF" flow, NOTES.md) driven at fixed flow rate:
+    The particle-free pipe at Re 9.4 (the paper's "LF" flow, paper/reading.md) driven at fixed flow rate:
     ``profile_error_rel_l2`` of ``summary.json``, the relative L2 distance of the time-averaged
     profile from Hagen-Poiseuille. The flow is z-invariant, so a short periodic pipe
     (``length_mm``) gives the same profile as the paper's 100 mm at a tenth of the cost.

@@ -2,7 +2,7 @@
 
 
 rule claims:
-    """Each of the 14 claims of NOTES.md evaluated from the tables: statistic, values, verdict."""
+    """Each of the 14 claims of paper/reading.md evaluated from the tables: statistic, values, verdict."""
     conda:
         "../envs/lbmpipe.yaml"
     input:
