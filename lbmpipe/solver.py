@@ -374,8 +374,9 @@ def run_scene(scene, params, out_dir: Path, progress: bool = True, max_steps: in
                 message += f" The last good checkpoint is kept at {checkpoint} (resuming it with the same scene repeats the failure)."
     wall = wall_before + time.perf_counter() - t0
     bar.close()
-    if checkpoint is not None and status == "completed" and not keep_checkpoint:
-        Path(checkpoint).unlink(missing_ok=True)
+    # the checkpoint is removed only once the final outputs are written (end of this function):
+    # a kill in between leaves it, and the rerun resumes instead of starting from step 0
+    drop_checkpoint = checkpoint is not None and status == "completed" and not keep_checkpoint
     mass1 = sim.mass()
     files = {}
     summary = {
@@ -398,7 +399,8 @@ def run_scene(scene, params, out_dir: Path, progress: bool = True, max_steps: in
         summary["guard"] = sim.guard.record()
     if checkpoint is not None:
         summary["checkpoint"] = {"path": str(checkpoint), "resumed_from_step": resumed_from, "written": n_written[0],
-                                 "kept": Path(checkpoint).exists(), "every_s": checkpoint_every_s}
+                                 "kept": Path(checkpoint).exists() and not drop_checkpoint,
+                                 "every_s": checkpoint_every_s}
     files["flow_rate.csv"] = outputs.write_flow_rate(out_dir, series, units, scene)
     if ps is not None:
         summary["particles"] = {
@@ -437,4 +439,6 @@ def run_scene(scene, params, out_dir: Path, progress: bool = True, max_steps: in
             summary["flow_rate_m3_s"] = units.flow_rate_phys(float(np.mean([row[1] for row in series[-max(1, n_avg):]])))
     summary["files"] = sorted(files)
     outputs.write_summary(out_dir, summary, scene, params)
+    if drop_checkpoint:
+        Path(checkpoint).unlink(missing_ok=True)
     return summary
