@@ -252,8 +252,9 @@ def _check_out_owner(out: Path, scene: Scene, force: bool, resuming: bool) -> in
               file=sys.stderr)
         return EXIT_EXISTS
     if owner["status"] == "completed" or not resuming:
-        print(f"output error in --out: {out} already holds a finished run (summary.json); nothing was changed. "
-              "Fix: use --force to overwrite it, or choose another --out", file=sys.stderr)
+        print(f"output error in --out: {out} already holds a run of this scene (summary.json, status "
+              f"{owner['status']!r}); nothing was changed. Fix: use --force to overwrite it, choose another --out"
+              + ("" if owner["status"] == "completed" else ", or resume it with --checkpoint"), file=sys.stderr)
         return EXIT_EXISTS
     return EXIT_OK
 
