@@ -48,7 +48,7 @@ def _limits():
 
 
 def _cli(args, cwd, env_extra=None, timeout=TIMEOUT):
-    env = dict(os.environ, NUMBA_NUM_THREADS="1", **(env_extra or {}))
+    env = {**os.environ, "NUMBA_NUM_THREADS": "1", **(env_extra or {})}
     env.pop("LBMPIPE_TRACEBACK", None)
     return subprocess.run([sys.executable, "-m", "lbmpipe", *map(str, args)], cwd=cwd, env=env, capture_output=True,
                           text=True, timeout=timeout, preexec_fn=_limits)
@@ -451,25 +451,27 @@ def test_check_applies_exactly_the_runs_pair_rule_at_the_smallest_length_it_name
 
     from lbmpipe.collisions import CollisionParams, Domain, resolve_collisions
     from lbmpipe.rigid import Bodies
-    from lbmpipe.scene import Scene, SceneError
+    from lbmpipe.scene import Collisions, Scene, SceneError
     from lbmpipe.shapes import CUBE
 
     with pytest.raises(SceneError) as err:
         Scene.model_validate(_two_cubes())
     need = float(re.search(r"at least ([0-9.]+) mm", str(err.value)).group(1))
     dx = PAPER_PIPE["numerics"]["dx_mm"]
+    c = Collisions()  # the scene's collision settings, passed to the kernel as the run passes them
+    prm = CollisionParams(restitution=c.restitution, contact_gap=c.contact_gap_dx, overlap_tol=c.overlap_tol_dx)
     for length, ok in ((need, True), (need - dx, False)):
         data = _with(_two_cubes(), **{"domain.length_mm": length})
         bodies = Bodies.make(CUBE, [8.0 / dx] * 3, 1.0, [[-12.0 / dx, 0.0, 4.0], [12.0 / dx, 0.0, 4.0]])
         dom = Domain.pipe(25.0 / dx, length / dx)
         if ok:
             Scene.model_validate(data)
-            resolve_collisions(bodies, dom, CollisionParams(), dt=1.0)
+            resolve_collisions(bodies, dom, prm, dt=1.0)
         else:
             with pytest.raises(SceneError, match="two interaction ranges"):
                 Scene.model_validate(data)
             with pytest.raises(SceneError, match="two interaction ranges"):
-                resolve_collisions(bodies, dom, CollisionParams(), dt=1.0)
+                resolve_collisions(bodies, dom, prm, dt=1.0)
 
 
 def test_a_single_free_16mm_cube_in_the_50mm_pipe_runs(tmp_path):
