@@ -7,7 +7,8 @@ from snakemake.utils import min_version, validate
 
 from pathlib import Path
 
-from lbmpipe.reproduction.cases import case_scene, estimate_minutes, packing_id, write_case_scene
+from lbmpipe.reproduction.cases import (CONFIG_SCHEMA, case_scene, config_problems, estimate_minutes, packing_id,
+                                       write_case_scene)
 from lbmpipe.reproduction.statistics import write_case_outputs
 
 min_version("8.0")
@@ -15,7 +16,12 @@ min_version("8.0")
 configfile: "config.yaml"
 
 
-validate(config, "workflow/schemas/config.schema.yaml")
+# One line per problem and exit status 2, before any job: the schema, the level, every case's scene.
+_CONFIG_PROBLEMS = config_problems(config, Path(workflow.basedir) / CONFIG_SCHEMA)
+if _CONFIG_PROBLEMS:
+    print("\n".join(_CONFIG_PROBLEMS), file=sys.stderr)
+    sys.exit(2)
+validate(config, "workflow/schemas/config.schema.yaml")  # fills the schema's defaults
 
 FIDELITY = config["fidelity"]
 if FIDELITY not in config["fidelities"]:

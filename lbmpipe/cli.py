@@ -10,9 +10,11 @@ guard stopped a diverging run); 130 interrupted.
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 from pathlib import Path
 
+from lbmpipe.inputs import InputError, check_memory, format_bytes, memory_estimate
 from lbmpipe.scene import Scene, SceneError, load_scene
 from lbmpipe.units import LatticeParams, derive
 
@@ -113,6 +115,7 @@ def format_report(scene: Scene, params: LatticeParams, source: str = "", cost_mo
     derived += [
         ("steps", f"{params.n_steps:,}  (spin-up {params.spinup_steps:,}, sample every {params.sample_every:,})"),
         ("estimated run time", f"{_duration(params.estimated_seconds)}  (lbmpipe.cost, {params.fluid_nodes * params.n_steps:.3g} node updates)"),
+        ("estimated memory", _memory_text(scene)),
     ]
     if cost_model is not None and cost_model[0] is not None:
         from .reproduction.study import predict_seconds
@@ -145,8 +148,18 @@ def format_closing_summary(summary: dict, out: Path | str) -> str:
     return "\n".join(lines)
 
 
+def _memory_text(scene: Scene) -> str:
+    from lbmpipe.inputs import available_memory
+
+    est = memory_estimate(scene)
+    avail, source = available_memory()
+    of = f" of {format_bytes(avail)} available ({source})" if avail is not None else ""
+    return f"{format_bytes(est['bytes'])}{of}"
+
+
 def _load(path: str) -> tuple[Scene, LatticeParams]:
     scene = load_scene(path)
+    check_memory(scene)  # before derive: a grid of billions of nodes is refused without allocating
     return scene, derive(scene)
 
 
@@ -173,13 +186,25 @@ def _cmd_run(args) -> int:
         return EXIT_BAD_SCENE
     out = Path(args.out)
     resuming = args.checkpoint is not None and Path(args.checkpoint).exists()
-    if (out / "summary.json").exists() and not args.force and not resuming:
-        print(f"{out} already holds a finished run (summary.json); nothing was changed. "
-              "Use --force to overwrite it, or choose another --out.", file=sys.stderr)
-        return EXIT_EXISTS
-    if args.steps is not None and args.steps < 1:
-        print("--steps must be at least 1", file=sys.stderr)
+    status = _check_out_owner(out, scene, args.force, resuming)
+    if status:
+        return status
+    try:
+        _prepare_paths(out, args)
+    except InputError as exc:
+        print(exc.line(), file=sys.stderr)
         return EXIT_BAD_SCENE
+    if resuming:  # a bad or foreign checkpoint is refused before the simulation is built
+        from lbmpipe.checkpoint import CheckpointError, read_head, scene_fingerprint
+
+        try:
+            read_head(Path(args.checkpoint), scene_fingerprint(scene))
+        except CheckpointError as exc:
+            print(_checkpoint_line(exc), file=sys.stderr)
+            return EXIT_BAD_SCENE
+    threads_note = _apply_threads(scene)
+    if threads_note and not args.quiet:
+        print(threads_note)
     if not args.quiet:
         print(format_report(scene, params, args.scene))
         print(f"\nwriting to {out}")
@@ -200,7 +225,7 @@ def _cmd_run(args) -> int:
     try:
         summary = run_scene(scene, params, out, progress=not args.quiet, max_steps=args.steps, **kwargs)
     except CheckpointError as exc:
-        print(str(exc), file=sys.stderr)
+        print(_checkpoint_line(exc), file=sys.stderr)
         return EXIT_BAD_SCENE
     except SceneError as exc:  # found only when the scene is built (a packing file that cannot be read)
         print(f"{args.scene}:\n{exc}", file=sys.stderr)
@@ -221,6 +246,102 @@ def _cmd_run(args) -> int:
         print(summary["message"], file=sys.stderr)
     print(f"run did not complete (status {status!r}); see {out}", file=sys.stderr)
     return EXIT_FAILED
+
+
+def _checkpoint_line(exc: Exception) -> str:
+    """A CheckpointError as the one-line ``checkpoint error in --checkpoint: ... Fix: ...``."""
+    text = " ".join(str(exc).split())
+    msg, sep, fix = text.rpartition("; ")
+    if not sep:
+        msg, fix = text, "delete the checkpoint to start afresh"
+    return f"checkpoint error in --checkpoint: {msg}. Fix: {fix}"
+
+
+def _check_out_owner(out: Path, scene: Scene, force: bool, resuming: bool) -> int:
+    """Exit status 3 (with one line) when ``out`` holds a run that must not be overwritten: a
+    finished run of this scene without --force (unless resuming its interrupted run), or any run
+    of another scene (name and fingerprint of its summary.json), even when a checkpoint of this
+    scene is resumed; else 0."""
+    from lbmpipe.inputs import out_dir_owner
+
+    owner = out_dir_owner(out) if out.is_dir() else None
+    if owner is None or force:
+        return EXIT_OK
+    if owner["fingerprint"] != _summary_fingerprint(scene):
+        print(f"output error in --out: {out} holds a run of another scene ({owner['name']!r}, status "
+              f"{owner['status']!r}); nothing was changed. Fix: choose another --out, or pass --force to overwrite it",
+              file=sys.stderr)
+        return EXIT_EXISTS
+    if owner["status"] == "completed" or not resuming:
+        print(f"output error in --out: {out} already holds a run of this scene (summary.json, status "
+              f"{owner['status']!r}); nothing was changed. Fix: use --force to overwrite it, choose another --out"
+              + ("" if owner["status"] == "completed" else ", or resume it with --checkpoint"), file=sys.stderr)
+        return EXIT_EXISTS
+    return EXIT_OK
+
+
+def _summary_fingerprint(scene: Scene) -> str:
+    """Fingerprint of the scene as ``outputs.write_summary`` records it (packing files named from
+    the working directory), to compare with a summary.json's."""
+    from lbmpipe.checkpoint import scene_fingerprint
+    from lbmpipe.outputs import portable_path
+
+    doc = scene.model_dump(mode="json")
+    for g in (doc.get("particles") or {}).get("packed") or []:
+        if g.get("file"):
+            g["file"] = portable_path(g["file"])
+    return scene_fingerprint(doc)
+
+
+def _prepare_paths(out: Path, args) -> None:
+    """--out is a folder we can write in (created now, before the first step) and --checkpoint a
+    file path in a writable folder; InputError otherwise."""
+    from lbmpipe.inputs import check_checkpoint_path, check_writable_dir
+
+    check_writable_dir(out, "--out")
+    if args.checkpoint is not None:
+        ck = Path(args.checkpoint)
+        check_checkpoint_path(ck)
+        check_writable_dir(ck.parent, "--checkpoint")
+
+
+def _apply_threads(scene: Scene) -> str:
+    """Set numba's thread count to the scene's ``run.threads`` (at most the threads numba
+    started with, NUMBA_NUM_THREADS); returns a note when it had to be capped. The results do not
+    depend on it (the sweep's chunks are fixed)."""
+    want = scene.run.threads
+    if want is None:
+        return ""
+    import numba
+
+    avail = numba.config.NUMBA_NUM_THREADS
+    numba.set_num_threads(min(want, avail))
+    if want > avail:
+        return f"run.threads = {want} but numba has {avail} threads (NUMBA_NUM_THREADS): using {avail}"
+    return ""
+
+
+def _cmd_check_config(args) -> int:
+    """``lbmpipe check-config CONFIG``: the checks the Snakefile makes before any job."""
+    import yaml
+
+    from lbmpipe.reproduction.cases import CONFIG_SCHEMA, config_problems
+
+    path = Path(args.config)
+    try:
+        text = path.read_text(encoding="utf-8")
+        config = yaml.safe_load(text)
+    except (OSError, UnicodeDecodeError, yaml.YAMLError, RecursionError) as exc:
+        print(f"config error in {path}: cannot read it ({type(exc).__name__}: {' '.join(str(exc).split())[:200]}). "
+              "Fix: give a readable UTF-8 YAML file", file=sys.stderr)
+        return EXIT_BAD_SCENE
+    schema = Path(args.root) / CONFIG_SCHEMA
+    problems = config_problems(config, schema)
+    for line in problems:
+        print(line, file=sys.stderr)
+    if not problems:
+        print(f"{path}: valid ({len(config['cases'])} cases, {len(config['fidelities'])} fidelity levels)")
+    return EXIT_BAD_SCENE if problems else EXIT_OK
 
 
 def _cmd_stability(args) -> int:
@@ -261,11 +382,50 @@ def _cmd_document(args) -> int:
     return EXIT_FAILED if stale else EXIT_OK
 
 
+class _Parser(argparse.ArgumentParser):
+    """argparse with the one-line error of every other bad input (status 2), not usage + error."""
+
+    def error(self, message: str):
+        msg = " ".join(message.split())
+        where = "the command line"
+        if msg.startswith("argument "):
+            where, _, msg = msg[len("argument "):].partition(": ")
+        self.exit(EXIT_BAD_SCENE, f"argument error in {where}: {msg}. Fix: see `{self.prog} --help`\n")
+
+
+def _seconds(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number of seconds") from None
+    if not (math.isfinite(value) and value >= 0):
+        raise argparse.ArgumentTypeError(f"{text!r} is not a finite number of seconds >= 0 (e.g. 300; 0: at every "
+                                         "sample)")
+    return value
+
+
+def _positive_int(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a whole number") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"{text!r} must be at least 1")
+    return value
+
+
+def _nonempty_path(text: str) -> str:
+    if not text.strip() or "\0" in text:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a path")
+    return text
+
+
 #: every command with its arguments and a one-line description; ``lbmpipe --help`` lists them all
 COMMANDS = {
     "check": ("SCENE...", "validate scene files and print the derived lattice parameters"),
     "run": ("SCENE --out DIR", "run a scene: progress bar, outputs in DIR, closing summary"),
-    "stability": ("", "run the stability suite (lbmpipe.stability) and print or write its table"),
+    "check-config": ("CONFIG", "validate a pipeline config (as the Snakefile does before any job)"),
+    "stability": ("", "run the stability suite (lbmpipe.reproduction.stability) and print or write its table"),
     "document": ("", "rebuild paper/reproduction_<level>.md/.html from results/<level>/ (no case is rerun)"),
 }
 
@@ -283,27 +443,33 @@ EPILOG = ("exit status: 0 success; 2 bad scene or arguments; 3 DIR already holds
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="lbmpipe", usage="lbmpipe [-h] COMMAND ...", description=_description(),
+    parser = _Parser(prog="lbmpipe", usage="lbmpipe [-h] COMMAND ...", description=_description(),
                                      epilog=EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
     # the commands are listed in the description; argparse's own list would repeat them
-    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND", help=argparse.SUPPRESS)
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND", help=argparse.SUPPRESS,
+                                parser_class=_Parser)
     p_check = sub.add_parser("check", help=COMMANDS["check"][1], description=COMMANDS["check"][1])
     p_check.add_argument("scenes", nargs="+", metavar="SCENE", help="YAML scene file(s); see docs/scene.md")
     p_check.add_argument("--cost-model", default=None, metavar="JSON",
                          help="cost model of the accuracy-cost study (default: the first of "
                               + ", ".join(COST_MODEL_PATHS) + " that exists)")
     p_check.set_defaults(func=_cmd_check)
+    p_cc = sub.add_parser("check-config", help=COMMANDS["check-config"][1], description=COMMANDS["check-config"][1])
+    p_cc.add_argument("config", metavar="CONFIG", help="pipeline config YAML, e.g. config.yaml")
+    p_cc.add_argument("--root", default=str(Path(__file__).resolve().parents[1]),
+                      help="repository root holding " + "workflow/schemas/config.schema.yaml (default: this checkout)")
+    p_cc.set_defaults(func=_cmd_check_config)
     p_run = sub.add_parser("run", help=COMMANDS["run"][1], description=COMMANDS["run"][1])
     p_run.add_argument("scene", metavar="SCENE", help="YAML scene file")
-    p_run.add_argument("--out", required=True, metavar="DIR", help="output directory")
+    p_run.add_argument("--out", required=True, metavar="DIR", type=_nonempty_path, help="output directory")
     p_run.add_argument("--force", action="store_true", help="overwrite a DIR that already holds summary.json")
-    p_run.add_argument("--steps", type=int, default=None, metavar="N", help="stop after N steps (smoke tests)")
+    p_run.add_argument("--steps", type=_positive_int, default=None, metavar="N", help="stop after N steps (smoke tests)")
     p_run.add_argument("--quiet", action="store_true", help="no report, no progress bar")
-    p_run.add_argument("--checkpoint", default=None, metavar="PATH",
+    p_run.add_argument("--checkpoint", default=None, metavar="PATH", type=_nonempty_path,
                        help="checkpoint file: resume from it if it exists (same scene only), write the state to it "
                             "every --checkpoint-every-s seconds and at Ctrl-C, remove it on completion; resuming "
                             "is allowed into a DIR whose summary.json is from the interrupted run")
-    p_run.add_argument("--checkpoint-every-s", type=float, default=300.0, metavar="S",
+    p_run.add_argument("--checkpoint-every-s", type=_seconds, default=300.0, metavar="S",
                        help="wall-clock seconds between checkpoints (default 300)")
     p_run.add_argument("--keep-checkpoint", action="store_true",
                        help="keep the checkpoint (with the final state) when the run completes")
@@ -330,5 +496,23 @@ def run_cli(argv: list[str] | None = None) -> int:
 
 
 def main(argv: list[str] | None = None) -> None:
-    """Console-script entry point; always ends with SystemExit(status)."""
-    raise SystemExit(run_cli(argv))
+    """Console-script entry point; always ends with SystemExit(status). Any error that escaped
+    the checks above still ends in one line (set LBMPIPE_TRACEBACK=1 for the traceback)."""
+    import os
+
+    try:
+        status = run_cli(argv)
+    except (SceneError, InputError) as exc:
+        print(str(exc), file=sys.stderr)
+        status = EXIT_BAD_SCENE
+    except MemoryError:
+        print("error: out of memory. Fix: check `lbmpipe check SCENE` for the memory estimate, and use a coarser "
+              "numerics.dx_mm or fewer particles", file=sys.stderr)
+        status = EXIT_FAILED
+    except Exception as exc:  # noqa: BLE001 - the last line of defence, reported as a bug
+        if os.environ.get("LBMPIPE_TRACEBACK"):
+            raise
+        print(f"internal error: {type(exc).__name__}: {' '.join(str(exc).split())[:300]}. Fix: this is a bug in "
+              "lbmpipe; rerun with LBMPIPE_TRACEBACK=1 and report the traceback", file=sys.stderr)
+        status = EXIT_FAILED
+    raise SystemExit(status)

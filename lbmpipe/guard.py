@@ -47,6 +47,8 @@ DEFAULT_EVERY = 50
 
 FLUID = -1
 WALL = -2
+#: a density floor that has added more than this share of the fluid mass is named as the cause
+FLOOR_SHARE_CAUSE = 0.01
 CS = 1.0 / math.sqrt(3.0)  # lattice speed of sound
 
 # columns of the per-chunk result of _scan
@@ -169,6 +171,7 @@ class Guard:
         self.checks = 0
         self.seconds = 0.0
         self.last: dict = {}
+        self.mass0 = 0.0  # fluid mass when the guard starts (guard_for), for the density floor's share
 
     # -- fluid ---------------------------------------------------------------------------------
     def scan(self, sim) -> dict:
@@ -205,6 +208,65 @@ class Guard:
             text += f", r = {math.hypot(x, y):.3g} mm of R = {g.radius * self.dx_mm:.3g} mm"
         return text
 
+    def node_context(self, sim, node: int) -> tuple[str, int]:
+        """Where a failing node lies: ``("particle", k)`` if a lattice link joins it to a node of
+        particle ``k``, ``("wall", -1)`` within 2 spacings of a wall, else ``("bulk", -1)``."""
+        g = self.grid
+        az, ny, nx = g.alloc_z, g.shape[1], g.shape[0]
+        ix, rest = divmod(int(node), ny * az)
+        iy, iz = divmod(rest, az)
+        if sim.particles is not None:
+            owner = sim.particles.owner
+            for ex, ey, ez in zip(self.ex, self.ey, self.ez):
+                jx, jy, jz = (ix + int(ex)) % nx, (iy + int(ey)) % ny, iz + int(ez)
+                if 0 <= jz < az and owner[(jx * ny + jy) * az + jz] >= 0:
+                    return "particle", int(owner[(jx * ny + jy) * az + jz])
+        if g.kind == "pipe":
+            if math.hypot(float(self._pos[0][ix]), float(self._pos[1][iy])) > g.radius - 2.0:
+                return "wall", -1
+            return "bulk", -1
+        for a, i in enumerate((ix, iy, iz)):
+            if g.ghost[a] and (i - g.ghost[a] < 2 or g.shape[a] - g.ghost[a] - 1 - i < 2):
+                return "wall", -1
+        return "bulk", -1
+
+    def floor_share(self, sim) -> float:
+        """Fluid mass the density floor has added so far, as a fraction of the mass at the start
+        of the guard (0 without a floor)."""
+        for e in sim.effects:
+            tally = getattr(e, "tally", None)
+            if tally is not None and getattr(e, "rho_min", 0.0) > 0.0 and self.mass0:
+                return float(tally[0]) / self.mass0
+        return 0.0
+
+    def _located_fix(self, sim, node: int) -> tuple[str, str]:
+        """Cause and fix from what was measured: mass added by the density floor, then the position
+        of the failing node (particle surface, wall or bulk), then the run's Mach number and tau."""
+        causes, fixes = [], []
+        share = self.floor_share(sim)
+        if share > FLOOR_SHARE_CAUSE:
+            causes.append(f"the density floor has added {100 * share:.3g} % of the fluid mass since the start: "
+                          "films thinner than one spacing (particles pressed together or against the wall, e.g. "
+                          "a fast impact) are drained by Eq. (8) faster than they refill")
+            fixes.append("slow the impacts (reduce numerics.dt_s, which also lowers the lattice speeds), or raise "
+                         "particles.collisions.contact_gap_dx to keep bodies a spacing apart")
+        where, k = self.node_context(sim, node)
+        if where == "particle" and not causes:
+            causes.append(f"the failing node touches particle {k}: the moving bounce-back of Eq. (8) at a fast "
+                          "or light particle, or a thin film between it and a neighbour or the wall")
+            fixes.append("reduce numerics.dt_s; check the particle's density_ratio and particles.gravity_m_s2")
+        elif where == "wall" and not causes:
+            if sim.particles is not None and sim.particles.n:
+                causes.append("the failing node is next to the wall, where a particle pressing against the wall "
+                              "squeezes the fluid film")
+                fixes.append("raise particles.collisions.contact_gap_dx or reduce numerics.dt_s")
+            else:  # no particle to blame: the wall first, then what the run's parameters suggest
+                cause, fix = self._fluid_fix()
+                return f"the failing node is next to the wall (a moving wall, or the staircase wall); {cause}", fix
+        if causes:
+            return "; ".join(causes), "; ".join(fixes)
+        return self._fluid_fix()
+
     def _fluid_fix(self) -> tuple[str, str]:
         causes, fixes = [], []
         if self.mach is not None and self.mach > 0.35:
@@ -228,17 +290,17 @@ class Guard:
         lim = self.limits
         step = sim.step_count
         if res["nonfinite"]:
-            cause, fix = self._fluid_fix()
+            cause, fix = self._located_fix(sim, res["nonfinite_node"])
             raise Unstable(f"non-finite populations (NaN/Inf) at {res['nonfinite']} fluid nodes, the first",
                            self.where_node(res["nonfinite_node"]), step, cause, fix)
         if res["u_max"] > lim.u_max:
-            cause, fix = self._fluid_fix()
+            cause, fix = self._located_fix(sim, res["u_node"])
             raise Unstable(f"fluid speed |u| = {res['u_max']:.3g} lattice units ({res['u_max'] / CS:.2f} c_s) above "
                            f"the limit {lim.u_max:g}", self.where_node(res["u_node"]), step, cause, fix)
         if res["rho_min"] < lim.rho_min or res["rho_max"] > lim.rho_max:
             low = res["rho_min"] < lim.rho_min
             val, node = (res["rho_min"], res["rho_min_node"]) if low else (res["rho_max"], res["rho_max_node"])
-            cause, fix = self._fluid_fix()
+            cause, fix = self._located_fix(sim, node)
             raise Unstable(f"fluid density {val:.4g} outside [{lim.rho_min:g}, {lim.rho_max:g}]",
                            self.where_node(node), step, cause, fix)
         return res
@@ -313,5 +375,7 @@ def guard_for(sim, scene, params) -> Guard:
     """The guard a scene's simulation gets: interval ``numerics.guard_every`` if the scene has
     that field, else ``DEFAULT_EVERY``."""
     every = getattr(scene.numerics, "guard_every", None) or DEFAULT_EVERY
-    return Guard(sim, every=every, dx_mm=params.units.dx_m * 1e3, tau=params.tau, mach=params.mach_max,
-                 collision=scene.numerics.collision)
+    guard = Guard(sim, every=every, dx_mm=params.units.dx_m * 1e3, tau=params.tau, mach=params.mach_max,
+                  collision=scene.numerics.collision)
+    guard.mass0 = sim.mass()
+    return guard

@@ -9,6 +9,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
+import os
 import platform
 import re
 import subprocess
@@ -53,6 +54,20 @@ def progress_bar(total: int, dt_s: float, n_fluid: int, enabled: bool = True, **
     return StepBar(total=total, disable=not enabled, **options)
 
 
+def replace_atomically(path: Path, write) -> None:
+    """``write(tmp)`` to a temporary name beside ``path``, then rename it over ``path``: a reader,
+    or a run killed mid-write, never sees a half-written file, and an older complete file stays
+    until the new one is."""
+    path = Path(path)
+    tmp = path.with_name(f".{path.name}.tmp")
+    try:
+        write(tmp)
+        os.replace(tmp, path)
+    finally:
+        if tmp.exists():
+            tmp.unlink()
+
+
 def write_flow_rate(out_dir: Path, series, units, scene) -> str:
     """``flow_rate.csv``: sampled flow rate, driving force density and density deviation."""
     arr = np.array(series, dtype=np.float64).reshape(-1, 4)
@@ -63,7 +78,7 @@ def write_flow_rate(out_dir: Path, series, units, scene) -> str:
         "force_density_N_m3": [units.force_phys(v) / units.dx_m**3 for v in arr[:, 2]],
         "max_density_deviation": arr[:, 3],
     })
-    df.to_csv(out_dir / "flow_rate.csv", index=False)
+    replace_atomically(Path(out_dir) / "flow_rate.csv", lambda tmp: df.to_csv(tmp, index=False))
     return "flow_rate.csv"
 
 
@@ -75,7 +90,7 @@ def write_profile(out_dir: Path, r, u, u_ref, count, units) -> str:
         "uz_poiseuille_m_s": [units.velocity_phys(v) for v in u_ref],
         "nodes": count,
     })
-    df.to_csv(out_dir / "profile.csv", index=False)
+    replace_atomically(Path(out_dir) / "profile.csv", lambda tmp: df.to_csv(tmp, index=False))
     return "profile.csv"
 
 

@@ -333,6 +333,8 @@ def _cross_field_errors(s: Scene) -> list[SceneError]:
             if getattr(d, key) is not None:
                 err(f"domain.{key}", f"{key} is for a pipe; a box is sized by size_mm", f"remove domain.{key}")
 
+    extents, huge = _node_count_errors(extents, dx)
+    errs.extend(huge)
     for field, value in extents:
         ratio = value / dx
         if abs(ratio - round(ratio)) > MULTIPLE_RTOL * max(ratio, 1.0) or round(ratio) < 1:
@@ -416,10 +418,36 @@ def _cross_field_errors(s: Scene) -> list[SceneError]:
             f"{_fmt(run.duration_s)} s", "lower run.sample_interval_s")
     if s.particles is not None:
         errs.extend(_particle_errors(s))
+        if not errs:  # geometry of placed bodies and the collision rule need a consistent scene
+            errs.extend(_placement_errors(s))
     if run.sample_interval_s < num.dt_s * (1 - MULTIPLE_RTOL):
         err("run.sample_interval_s", f"sample interval {_fmt(run.sample_interval_s)} s is shorter than one time step "
             f"(numerics.dt_s = {_fmt(num.dt_s)} s)", f"set run.sample_interval_s to a multiple of {_fmt(num.dt_s)}")
     return errs
+
+
+#: nodes along one axis beyond which no run is meaningful (and the arithmetic stays exact)
+MAX_NODES_PER_AXIS = 10**7
+
+
+def _node_count_errors(extents: list[tuple[str, float]], dx: float) -> tuple[list[tuple[str, float]], list[SceneError]]:
+    """Extents of a sane node count, and an error for each extent that would span more than
+    MAX_NODES_PER_AXIS nodes (or overflow: dx_mm = 1e-320) -- refused before any count is used."""
+    keep, errs = [], []
+    for field, value in extents:
+        try:
+            ratio = value / dx
+        except (OverflowError, ZeroDivisionError):
+            ratio = math.inf
+        if not math.isfinite(ratio) or ratio > MAX_NODES_PER_AXIS:
+            if errs:  # one line for the one cause (dx_mm)
+                continue
+            errs.append(SceneError("numerics.dx_mm", f"{field} = {_fmt(value)} mm spans {ratio:.3g} nodes of dx_mm = "
+                                   f"{dx:.3g} (at most {MAX_NODES_PER_AXIS:.0e} per axis)",
+                                   f"use a dx_mm of at least {_fmt(value / MAX_NODES_PER_AXIS)} mm (the paper's is 1 mm)"))
+        else:
+            keep.append((field, value))
+    return keep, errs
 
 
 def _particle_errors(s: Scene) -> list[SceneError]:
@@ -483,6 +511,15 @@ def _particle_errors(s: Scene) -> list[SceneError]:
     return errs
 
 
+def _placement_errors(s: Scene) -> list[SceneError]:
+    """Rules on where the particles are (``lbmpipe.inputs``): explicit bodies overlapping a wall
+    or each other, random groups larger than the domain, and the collision model's periodic rule
+    (the run's own function)."""
+    from lbmpipe import inputs
+
+    return inputs.random_volume_errors(s) + inputs.placement_errors(s) + inputs.pair_rule_errors(s)
+
+
 # ---------------------------------------------------------------------------------------------
 # Pydantic errors -> SceneError
 
@@ -521,12 +558,19 @@ def _field_info(loc: tuple):
     return parent.model_fields.get(keys[-1]) if parent is not None else None
 
 
+class _Short(str):
+    def __repr__(self) -> str:
+        return str(self)
+
+
 def _translate(err: dict) -> SceneError:
     loc = tuple(err.get("loc", ()))
     typ = err.get("type", "")
     msg = err.get("msg", "invalid value")
     path = _path(loc)
     got = err.get("input")
+    if len(repr(got)) > 80:  # one readable line, even for a huge value
+        got = _Short(repr(got)[:60] + f"... ({len(repr(got)):,} characters)")
     info = _field_info(loc)
     hint = f" ({info.description.rstrip('.')})" if info is not None and info.description else ""
     docs = f"see {DOCS_PATH}"
@@ -595,17 +639,97 @@ def _construct_mapping(loader: yaml.SafeLoader, node: yaml.MappingNode, deep: bo
 _UniqueKeyLoader.add_constructor(yaml.resolver.BaseResolver.DEFAULT_MAPPING_TAG, _construct_mapping)
 
 
+#: a scene is a few kilobytes; anything far larger is not one (and is not read into memory)
+MAX_SCENE_BYTES = 1_000_000
+#: nesting depth and node count (aliases expanded) of a scene's YAML: far above any real scene,
+#: far below what a crafted file (a list nested 20,000 deep, an alias bomb) would need
+MAX_YAML_DEPTH = 40
+MAX_YAML_NODES = 200_000
+
+
+def _read_scene_text(path: Path) -> str:
+    """The scene file as text, or a SceneError naming the file: unreadable, too large, not UTF-8."""
+    where = str(path)
+    try:
+        if path.is_dir():
+            raise SceneError(where, "this is a folder, not a scene file", "give the path of a YAML scene file")
+        size = path.stat().st_size
+        if size > MAX_SCENE_BYTES:
+            raise SceneError(where, f"the file has {size:,} bytes; a scene is a few kilobytes (limit "
+                             f"{MAX_SCENE_BYTES:,})", "give the YAML scene file, not a data file")
+        with open(path, "rb") as fh:
+            raw = fh.read(MAX_SCENE_BYTES + 1)
+    except OSError as exc:
+        raise SceneError(where, f"cannot read the scene file ({exc.strerror or exc})", "check the path") from None
+    try:
+        return raw.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        line = raw[:exc.start].count(b"\n") + 1
+        raise SceneError(where, f"byte 0x{raw[exc.start]:02x} at line {line} is not UTF-8 text",
+                         "save the file as UTF-8 (e.g. `iconv -f latin1 -t utf-8`), or remove that character") from None
+
+
+def _bounded_yaml(text: str, where: str):
+    """Parse YAML with bounds on nesting depth and on the node count with aliases expanded, both
+    checked before any Python object is built (the event scan is iterative; the node graph keeps
+    an alias as one shared node)."""
+    depth = 0
+    for ev in yaml.parse(text, Loader=yaml.SafeLoader):
+        if isinstance(ev, yaml.CollectionStartEvent):
+            depth += 1
+            if depth > MAX_YAML_DEPTH:
+                raise SceneError(where, f"the YAML nests deeper than {MAX_YAML_DEPTH} levels (line "
+                                 f"{ev.start_mark.line + 1})", "a scene nests a few levels: remove the nesting")
+        elif isinstance(ev, yaml.CollectionEndEvent):
+            depth -= 1
+    loader = _UniqueKeyLoader(text)
+    try:
+        node = loader.get_single_node()
+        if node is None:
+            return None
+        sizes: dict[int, int] = {}
+
+        def size(n) -> int:  # nodes with aliases expanded; shared nodes counted once per use
+            key = id(n)
+            if key in sizes:
+                if sizes[key] < 0:
+                    raise SceneError(where, "an alias refers to the collection that contains it", "remove the recursive alias")
+                return sizes[key]
+            sizes[key] = -1
+            if isinstance(n, yaml.MappingNode):
+                total = 1 + sum(size(k) + size(v) for k, v in n.value)
+            elif isinstance(n, yaml.SequenceNode):
+                total = 1 + sum(size(v) for v in n.value)
+            else:
+                total = 1
+            sizes[key] = min(total, MAX_YAML_NODES + 1)
+            return sizes[key]
+
+        if size(node) > MAX_YAML_NODES:
+            raise SceneError(where, f"the YAML expands to more than {MAX_YAML_NODES:,} values (anchors and aliases "
+                             "repeated into each other)", "write the scene without nested aliases")
+        return loader.construct_document(node)
+    finally:
+        loader.dispose()
+
+
 def load_scene(path: str | Path) -> Scene:
     """Read and validate a YAML scene file; raises SceneError."""
     path = Path(path)
+    text = _read_scene_text(path)
     try:
-        text = path.read_text(encoding="utf-8")
-    except OSError as exc:
-        raise SceneError(str(path), f"cannot read the scene file ({exc.strerror or exc})", "check the path") from None
-    try:
-        data = yaml.load(text, Loader=_UniqueKeyLoader)
+        data = _bounded_yaml(text, str(path))
     except yaml.YAMLError as exc:
-        raise SceneError(str(path), f"not valid YAML: {exc}", "fix the YAML syntax at the position shown") from None
+        raise SceneError(str(path), f"not valid YAML: {' '.join(str(exc).split())}",
+                         "fix the YAML syntax at the position shown") from None
+    except SceneError:
+        raise
+    except ValueError as exc:  # e.g. an integer of more than 4,300 digits
+        raise SceneError(str(path), f"cannot read a value ({' '.join(str(exc).split())[:120]})",
+                         "give plain numbers and strings") from None
+    except (RecursionError, MemoryError):  # a bound above was not enough: still one line
+        raise SceneError(str(path), "the YAML is too deeply nested or too large to read",
+                         "write the scene as a plain mapping of a few levels") from None
     if not isinstance(data, dict):
         raise SceneError(str(path), f"the file must hold a YAML mapping, got {type(data).__name__}",
                          f"write the scene as `name: ...`, `domain: ...`, ... ; {DOCS_PATH}")
@@ -699,6 +823,38 @@ satisfy these rules:
   along walled axes); a particle's bounding diameter plus two nodes fits in every periodic length.
   Random placement that cannot fit the requested number of non-overlapping bounding spheres fails
   at run time with the number it reached.
+- Explicit bodies (`particles.bodies`) that are free may not reach into the pipe wall or a box
+  wall, and no two explicit bodies (unless both are fixed) may overlap, beyond the collision
+  model's tolerance `overlap_tol_dx` spacings; the error gives the overlap in mm.
+- A random group given by `count` holds less volume than the domain.
+- Collisions with a pair search (collisions and `pairs` on, two or more bodies, one of them free)
+  need every periodic length to hold two interaction ranges, `2 (2 r_b + contact_gap_dx + skin)`
+  with `r_b` the largest bounding radius, `skin` 0.5 spacing: the run's own rule
+  (`lbmpipe.particles.collisions.min_periodic_length`); the error names the smallest length that works. One
+  free body, or `pairs: false`, needs no such length.
+
+## Limits of a scene file and of a run
+
+`lbmpipe check` and `lbmpipe run` refuse, before allocating anything:
+
+- a scene file larger than 1 MB, not UTF-8 (the byte and line are named), nested deeper than 40
+  levels, or expanding (anchors and aliases) to more than 200,000 values;
+- more than 10^7 nodes along one axis (e.g. a tiny `dx_mm`);
+- a run whose memory estimate exceeds the memory available (the smallest of MemAvailable, a
+  cgroup limit and `ulimit -v`); `lbmpipe check` prints the estimate (`estimated memory`): two
+  population arrays of `q` values per node of the whole block, 64 bytes per node of other fields,
+  4 kB per particle and 300 MB for the interpreter and compiled kernels.
+
+`lbmpipe run` also refuses, with exit status 2 and one line, before the first step: an `--out`
+that is a file, lies under a file or cannot be written; a `--checkpoint` that is a folder or lies
+under a file; `--checkpoint-every-s` or `--steps` that is not a positive finite number; a
+checkpoint that cannot be read (truncated, not an archive) or belongs to another scene. An `--out`
+holding a finished run, or a run of another scene (name and fingerprint of its `summary.json`),
+is refused with exit status 3 even when a checkpoint is resumed, unless `--force` is given.
+Outputs are written to temporary names and renamed into place; the checkpoint is removed only
+after the last output. `run.threads` sets the number of numba threads (at most
+`NUMBA_NUM_THREADS`). `lbmpipe check-config CONFIG` applies the checks the Snakefile makes before
+any job: the schema, the fidelity level, and every case's scene at every level.
 
 ## Derived lattice parameters (`lbmpipe.units.derive`)
 

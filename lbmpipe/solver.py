@@ -496,11 +496,19 @@ class CheckpointWriter(Reporter):
         if status == "interrupted" or (status == "completed" and self.keep):
             self.save(sim)
 
+    def drops(self, status: str) -> bool:
+        """Whether the run's end removes the checkpoint (completed, not asked to keep it)."""
+        return status == "completed" and not self.keep
+
     def record(self, status: str) -> dict:
-        if status == "completed" and not self.keep:
-            self.path.unlink(missing_ok=True)
         return {"path": str(self.path), "resumed_from_step": self.resumed_from, "written": self.written,
-                "kept": self.path.exists(), "every_s": self.every_s}
+                "kept": self.path.exists() and not self.drops(status), "every_s": self.every_s}
+
+    def drop(self, status: str) -> None:
+        """Remove the checkpoint of a completed run; called only once the final outputs are
+        written, so a kill in between leaves it and the rerun resumes instead of starting over."""
+        if self.drops(status):
+            self.path.unlink(missing_ok=True)
 
 
 @dataclass
@@ -604,4 +612,6 @@ def run_scene(scene, params, out_dir: Path, progress: bool = True, max_steps: in
     profile.write(out_dir, summary, files, scene, params, run.flow.rows)
     summary["files"] = sorted(files)
     outputs.write_summary(out_dir, summary, scene, params)
+    if writer is not None:
+        writer.drop(status)
     return summary

@@ -36,6 +36,8 @@ def _sim(data=PIPE, particles=None):
     data = copy.deepcopy(data)
     if particles:
         data["particles"] = copy.deepcopy(particles)
+        # the pair search of the 4 mm cubes needs a period of two interaction ranges (16.9 mm)
+        data["domain"]["length_mm"] = 20.0
     scene = Scene.model_validate(data)
     params = derive(scene)
     return simulation_from_scene(scene, params), params

@@ -1032,6 +1032,17 @@ def _carry_hints(ostart, ojs, owin, nstart, njs):
     return win
 
 
+def min_periodic_length(rb_max, contact_gap, skin):
+    """Shortest periodic length in which the pair search over bodies of bounding radius up to
+    ``rb_max`` meets no pair twice: two interaction ranges ``2 (2 rb_max + contact_gap + skin)``
+    (lattice units). The one rule both the run (``_resolve_kernel``) and ``lbmpipe check``
+    (``lbmpipe.inputs.pair_rule_errors``) apply."""
+    return 2.0 * (2.0 * rb_max + contact_gap + skin)
+
+
+_min_periodic_length = njit(cache=True, inline="always")(min_periodic_length)
+
+
 @njit(cache=True)
 def _resolve_kernel(
     kind, h, mass, inertia, x, v, q, wb, fixed,
@@ -1059,19 +1070,20 @@ def _resolve_kernel(
     # gap below which a contact can become active within this step
     reach = contact_gap + (2.0 * vmax * dt if spec else 0.0)
     margin = reach + skin
-    if do_impulses:
+    if do_impulses and pairs:
         # A periodic axis shorter than two interaction ranges 2 r_b,max + margin would let a pair
         # meet two images: refused before anything moves (status 1 + axis; 4 + axis if only the
         # speculative reach is too long), for resolve_collisions to raise. Checked here rather than
         # with NumPy before the call: run cold after the fluid sweep, those calls took 0.15 ms a step.
+        # Without a pair search (one body, or pairs off) a body meets only the walls: no rule.
         rbmax = 0.0
         for i in range(n):
             rbmax = max(rbmax, rb[i])
         for a in range(3):
-            if periodic[a] and (hi[a] - lo[a]) < 2.0 * (2.0 * rbmax + contact_gap + skin):
+            if periodic[a] and (hi[a] - lo[a]) < _min_periodic_length(rbmax, contact_gap, skin):
                 return 0.0, lstart, ljs, lwin, 1 + a
         for a in range(3):
-            if periodic[a] and (hi[a] - lo[a]) < 2.0 * (2.0 * rbmax + margin):
+            if periodic[a] and (hi[a] - lo[a]) < _min_periodic_length(rbmax, reach, skin):
                 return 0.0, lstart, ljs, lwin, 4 + a
     if pairs:
         # the Verlet list (lstart, ljs: neighbour_list), built at lxref for the margin lmeta[0]
@@ -1357,11 +1369,14 @@ def _refuse(status: int, bodies: Bodies, params: CollisionParams, lo, hi, step: 
     a = (status - 1) % 3
     rb = bounding_radii(bodies.kind, bodies.h)
     if status <= 3:
-        raise ValueError(
-            f"periodic length {hi[a] - lo[a]:g} along axis {'xyz'[a]} is shorter than two interaction "
-            f"ranges (2 x {2.0 * float(np.max(rb)) + params.contact_gap + params.skin:g}): a pair would "
-            f"interact with two images"
-        )
+        from .scene import SceneError  # a ValueError; lbmpipe check applies the same rule first
+
+        need = min_periodic_length(float(np.max(rb)), params.contact_gap, params.skin)
+        raise SceneError(
+            "domain", f"periodic length {hi[a] - lo[a]:g} along axis {'xyz'[a]} is shorter than two interaction "
+            f"ranges in lattice spacings (2 x {need / 2:g}): a pair would interact with two images",
+            f"make the domain at least {need:g} lattice spacings long along that axis, or set "
+            "particles.collisions.pairs: false")
     # The geometry fits; only the speculative reach of a body moving many lattice spacings per
     # step does not. No physical suspension does that: it is a blown-up run, so report it as one
     # (the guard's status 'unstable') rather than as a bad domain.

@@ -207,3 +207,51 @@ def simulate_case(scene_path: Path, packing_json: Path | None, out_dir: Path, th
     if not (out_dir / "profile.csv").exists():
         (out_dir / "profile.csv").write_text("r_mm,uz_m_s,uz_poiseuille_m_s,nodes\n")
     return summary
+
+
+CONFIG_SCHEMA = "workflow/schemas/config.schema.yaml"
+
+
+def config_problems(config: dict, schema_path: str | Path) -> list[str]:
+    """Problems of a pipeline config, each one line ``config error in <key>: ... Fix: ...``:
+    the JSON schema (``schema_path``), the selected fidelity, and every case's scene at every
+    fidelity level (validated as ``lbmpipe check`` would, before a job starts). Empty if none."""
+    import jsonschema
+
+    from .units import derive
+
+    if not isinstance(config, dict):
+        return [f"config error in the config file: it must hold a mapping, got {type(config).__name__}. "
+                f"Fix: write it as in config.yaml ({CONFIG_SCHEMA})"]
+    schema = yaml.safe_load(Path(schema_path).read_text())
+    errors = sorted(jsonschema.Draft202012Validator(schema).iter_errors(config), key=lambda e: list(e.absolute_path))
+    out = []
+    for err in errors:
+        where = ".".join(str(p) for p in err.absolute_path) or "the config"
+        desc = err.schema.get("description") if isinstance(err.schema, dict) else None
+        msg = " ".join(err.message.split())
+        if len(msg) > 200:
+            msg = msg[:200] + " ..."
+        hint = f" ({' '.join(desc.split())})" if desc else ""
+        out.append(f"config error in {where}: {msg}. Fix: give a value the schema accepts{hint}; see {CONFIG_SCHEMA}")
+    if out:
+        return out
+    if config["fidelity"] not in config["fidelities"]:
+        return [f"config error in fidelity: {config['fidelity']!r} is not one of {sorted(config['fidelities'])}. "
+                "Fix: add it under `fidelities` or pick an existing level (--config fidelity=smoke)"]
+    for cname, case in config["cases"].items():
+        for fname, fid in config["fidelities"].items():
+            n_before = len(out)
+            try:
+                data = case_scene(cname, case, fname, fid)
+                derive(Scene.model_validate(data))
+            except SceneError as exc:
+                e = exc.errors[0]
+                out.append(f"config error in cases.{cname} at fidelities.{fname}: its scene's {e.field}: {e.message}. "
+                           f"Fix: {e.fix}")
+            except (ValueError, KeyError, TypeError) as exc:
+                out.append(f"config error in cases.{cname} at fidelities.{fname}: {' '.join(str(exc).split())}. "
+                           f"Fix: see {CONFIG_SCHEMA}")
+            if len(out) > n_before:  # one line per case: its first failing level
+                break
+    return out
