@@ -1369,7 +1369,7 @@ def _refuse(status: int, bodies: Bodies, params: CollisionParams, lo, hi, step: 
     a = (status - 1) % 3
     rb = bounding_radii(bodies.kind, bodies.h)
     if status <= 3:
-        from .scene import SceneError  # a ValueError; lbmpipe check applies the same rule first
+        from ..errors import SceneError  # a ValueError; lbmpipe check applies the same rule first
 
         need = min_periodic_length(float(np.max(rb)), params.contact_gap, params.skin)
         raise SceneError(

@@ -247,7 +247,7 @@ def write_static(out_dir: Path, static: list[dict]) -> str:
     """``particles_static.csv``: one row per particle, its shape and size (NaN where the shape has
     no such size), density and whether it is fixed."""
     df = pd.DataFrame(static, columns=list(STATIC_COLUMNS))
-    from .outputs import replace_atomically
+    from ..outputs import replace_atomically
 
     replace_atomically(Path(out_dir) / "particles_static.csv", lambda tmp: df.to_csv(tmp, index=False))
     return "particles_static.csv"
@@ -294,7 +294,7 @@ class ParticleRecorder:
         return df
 
     def write(self, out_dir: Path) -> str:
-        from .outputs import replace_atomically
+        from ..outputs import replace_atomically
 
         df = self.frame()
         replace_atomically(Path(out_dir) / "particles.parquet", lambda tmp: df.to_parquet(tmp, index=False))

@@ -218,7 +218,7 @@ def config_problems(config: dict, schema_path: str | Path) -> list[str]:
     fidelity level (validated as ``lbmpipe check`` would, before a job starts). Empty if none."""
     import jsonschema
 
-    from .units import derive
+    from ..units import derive
 
     if not isinstance(config, dict):
         return [f"config error in the config file: it must hold a mapping, got {type(config).__name__}. "
