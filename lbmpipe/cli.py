@@ -1,5 +1,5 @@
-"""Command line: ``lbmpipe check SCENE...``, ``lbmpipe run SCENE --out DIR``, ``lbmpipe stability`` and
-``lbmpipe document``.
+"""Command line: ``lbmpipe check SCENE...``, ``lbmpipe check-config CONFIG``, ``lbmpipe run SCENE --out DIR``,
+``lbmpipe stability`` and ``lbmpipe document``.
 
 Exit status: 0 success; 2 bad scene, bad arguments or a checkpoint of another scene; 3 output
 directory already holds a finished run (``summary.json``) and ``--force`` was not given (unless

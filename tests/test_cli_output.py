@@ -25,7 +25,7 @@ def _help(capsys) -> str:
 def test_help_names_every_command_in_plain_text(capsys):
     text = _help(capsys)
     sub = next(a for a in cli.build_parser()._actions if a.__class__.__name__ == "_SubParsersAction")
-    assert set(sub.choices) == {"check", "run", "stability", "document"}
+    assert set(sub.choices) == {"check", "check-config", "run", "stability", "document"}
     for name in sub.choices:
         assert re.search(rf"^  {name}\b", text, re.M), f"`lbmpipe --help` does not name `{name}`"
     assert "``" not in text and ":func:" not in text  # no reStructuredText markup
