@@ -209,6 +209,12 @@ def simulation_from_scene(scene, params, guard: bool = True) -> Simulation:
         r = np.sqrt(x[:, None] ** 2 + y[None, :] ** 2)
         uz = obs.poiseuille_pipe(r, grid.radius, 2.0 * params.u_mean_lu)[:, :, None]
         sim.set_equilibrium(1.0, (0.0, 0.0, uz))
+    if scene.initial.velocity == "linear" and grid.kind == "box":
+        a = next(b for b in range(3) if not grid.periodic[b])  # the walled axis (the scene checks it is one)
+        w = params.wall_velocities_lu
+        lo, hi = w.get(f"{'xyz'[a]}-", (0.0, 0.0, 0.0)), w.get(f"{'xyz'[a]}+", (0.0, 0.0, 0.0))
+        u = obs.couette_box(grid.positions()[a], float(params.shape[a]), lo, hi)
+        sim.set_equilibrium(1.0, [np.expand_dims(c, tuple(b for b in range(3) if b != a)) for c in u])
     if guard:
         from .guard import guard_for
 
@@ -267,7 +273,9 @@ def run_scene(scene, params, out_dir: Path, progress: bool = True, max_steps: in
     from . import checkpoint as ckpt
     from . import outputs
     from .collisions import CollisionEffect
+    from .fields import FieldWriter
     from .guard import Unstable
+    from .profiles import PlaneProfile
 
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -292,6 +300,8 @@ def run_scene(scene, params, out_dir: Path, progress: bool = True, max_steps: in
         from . import particles as particles_out
 
         recorder = particles_out.ParticleRecorder(ps, units)
+    planes = PlaneProfile.for_grid(grid)  # a box's profile across its walls
+    fields_out = FieldWriter.from_scene(scene, params, grid, out_dir, n_steps)
     if checkpoint is not None and Path(checkpoint).exists():
         run, arrs = ckpt.load(Path(checkpoint), sim, fingerprint)
         resumed_from = sim.step_count
@@ -302,15 +312,20 @@ def run_scene(scene, params, out_dir: Path, progress: bool = True, max_steps: in
         if recorder is not None and ps.n:
             rows = arrs["particle_rows"]
             recorder.rows = [rows[i:i + ps.n].copy() for i in range(0, len(rows), ps.n)]
+        if planes is not None and "plane_samples" in arrs:
+            planes.restore(arrs)
     elif recorder is not None:
         recorder.sample(0)
+    if fields_out is not None:
+        fields_out.start(sim, resumed=resumed_from is not None)
 
     def save_checkpoint(wall_so_far: float) -> None:
         rows = np.concatenate(recorder.rows) if recorder is not None and recorder.rows else np.zeros((0, 0))
         ckpt.write(Path(checkpoint), sim, fingerprint,
                    run={"mass0": mass0, "n_avg": n_avg, "wall_seconds": wall_so_far},
                    run_arrays={"uz_sum": uz_sum, "uz_cnt": uz_cnt,
-                               "series": np.array(series, dtype=np.float64).reshape(-1, 4), "particle_rows": rows})
+                               "series": np.array(series, dtype=np.float64).reshape(-1, 4), "particle_rows": rows,
+                               **(planes.state() if planes is not None else {})})
         n_written[0] += 1
 
     n_written = [0]
@@ -331,8 +346,12 @@ def run_scene(scene, params, out_dir: Path, progress: bool = True, max_steps: in
                 chunk = min(every - sim.step_count % every, n_steps - sim.step_count)
                 if stop_at_step is not None and sim.step_count < stop_at_step:
                     chunk = min(chunk, stop_at_step - sim.step_count)
+                if fields_out is not None:
+                    chunk = min(chunk, fields_out.steps_to_next(sim.step_count))
                 sim.step(chunk)
                 bar.update(chunk)
+                if fields_out is not None and fields_out.due(sim.step_count):
+                    fields_out.sample(sim, sim.step_count)
                 if sim.step_count % every == 0 or sim.step_count == n_steps:
                     rho, ux, uy, uz = sim.moments()
                     fluid = sim.fluid_mask()
@@ -352,6 +371,8 @@ def run_scene(scene, params, out_dir: Path, progress: bool = True, max_steps: in
                         uz_sum += np.where(fluid, uz, 0.0)
                         uz_cnt += fluid
                         n_avg += 1
+                        if planes is not None:
+                            planes.add((ux, uy, uz), fluid)
                     elapsed = time.perf_counter() - t0
                     bar.set_postfix_str(outputs.progress_text(sim.step_count, units.dt_s, grid.n_fluid, elapsed))
                 if stop.hit or (stop_at_step is not None and sim.step_count >= stop_at_step
@@ -421,6 +442,10 @@ def run_scene(scene, params, out_dir: Path, progress: bool = True, max_steps: in
             else "no free particles"}
         files[particles_out.write_static(out_dir, sim.particle_static)] = True
         files[recorder.write(out_dir)] = True
+    if fields_out is not None:
+        files.update(dict.fromkeys(fields_out.close(), True))
+    if planes is not None and n_avg > 0 and scene.outputs.profile:
+        files[planes.write(out_dir, units)] = True
     if grid.kind == "pipe" and n_avg > 0:
         x, y, _ = grid.positions()
         # time-weighted fluid mean per column (nodes count only while they are fluid), spread
