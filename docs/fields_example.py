@@ -2,7 +2,8 @@
 the paper's 50 x 50 x 100 pipe at dx = 1 mm with 21 free cylinders and cubes) run with
 ``outputs.fields``, its last sample read back from the VTK files with ``vtk`` and drawn headless
 with matplotlib: the axial velocity in the plane x = 0 and in the cross-section through the
-middle, solid nodes (wall, particles) in grey, particle centres near the plane with their axes.
+middle, solid nodes (wall, particles) in grey, centres of the particles near the plane (+) and the
+axes of the cylinders among them (arrows).
 
     python docs/fields_example.py [--out DIR] [--png PATH] [--duration S]
 
@@ -52,8 +53,9 @@ def render(out_dir: Path, png: Path) -> Path:
         p = parts["points"]
         near = np.abs(p[:, 0] - 0.5 * (edges[0][ix] + edges[0][ix + 1])) < parts["bounding_radius_mm"]
         ax1.plot(p[near, 2], p[near, 1], "w+", ms=6)
+        cyl = near & (parts["shape_id"] == 1)  # a cylinder's axis is its body z axis
         axis = parts["axis_z"]
-        ax1.quiver(p[near, 2], p[near, 1], axis[near, 2], axis[near, 1], color="w", angles="xy", scale=12, width=0.004)
+        ax1.quiver(p[cyl, 2], p[cyl, 1], axis[cyl, 2], axis[cyl, 1], color="w", angles="xy", scale=12, width=0.004)
     ax1.set_xlabel("z (mm)")
     ax1.set_ylabel("y (mm)")
     ax1.set_aspect("equal")

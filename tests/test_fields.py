@@ -145,7 +145,7 @@ def test_resumed_run_keeps_the_series_without_duplicates_or_gaps_and_the_same_fi
         assert (tmp_path / "part" / "fields" / f.name).read_bytes() == f.read_bytes(), f.name
 
 
-def test_check_prints_the_field_output_size_per_sample():
+def test_check_prints_the_field_output_size_per_sample(tmp_path):
     data = yaml.safe_load((ROOT / "scenes" / "pipe_re9.4.yaml").read_text())
     data["outputs"] = {"fields": {"interval_s": 0.5}}
     scene, params = _scene(data)
@@ -153,13 +153,10 @@ def test_check_prints_the_field_output_size_per_sample():
     # 52 x 52 x 100 nodes (wall ghosts included) x 17 bytes (3 + 1 float32, 1 uint8)
     assert lat == 52 * 52 * 100 * 17 + fields.HEADER_BYTES["lattice"] and parts == 0
     assert fields.sample_count(scene, params) == 1 + 6000 // 500
-    path = ROOT / "scenes" / "_fields_check.yaml"
-    try:
-        path.write_text(yaml.safe_dump(data))
-        res = subprocess.run([sys.executable, "-m", "lbmpipe", "check", str(path)], capture_output=True, text=True,
-                             cwd=ROOT, timeout=120)
-    finally:
-        path.unlink(missing_ok=True)
+    path = tmp_path / "scene.yaml"
+    path.write_text(yaml.safe_dump(data))
+    res = subprocess.run([sys.executable, "-m", "lbmpipe", "check", str(path)], capture_output=True, text=True,
+                         cwd=ROOT, timeout=120)
     assert res.returncode == 0, res.stderr
     line = next(ln for ln in res.stdout.splitlines() if "field output" in ln)
     assert f"{lat / 1e6:.3g} MB lattice per sample, 13 samples" in line
