@@ -97,8 +97,9 @@ def main(argv=None) -> int:
     if summary["status"] != "completed":
         print(summary["message"], file=sys.stderr)
         return 1
-    for name in sorted((out / "fields").iterdir())[-2:]:
-        print(f"{name}: {name.stat().st_size / 1e6:.3f} MB")
+    for kind in ("lattice", "particles"):
+        name = sorted((out / "fields").glob(f"{kind}_*"))[-1]
+        print(f"{name}: {name.stat().st_size:,} bytes")
     print(render(out, Path(args.png)))
     return 0
 
