@@ -46,8 +46,7 @@ def render(out_dir: Path, png: Path) -> Path:
                                    constrained_layout=True)
     ix = nx // 2
     sl = np.ma.masked_where(solid[ix], uz[ix])
-    cmap = matplotlib.colormaps["viridis"].copy()
-    cmap.set_bad("0.6")
+    cmap = matplotlib.colormaps["viridis"].with_extremes(bad="0.6")
     m = ax1.pcolormesh(edges[2], edges[1], sl, cmap=cmap, vmin=0, vmax=vmax, shading="flat")
     if parts is not None:
         p = parts["points"]
