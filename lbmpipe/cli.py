@@ -104,6 +104,7 @@ def format_report(scene: Scene, params: LatticeParams, source: str = "", cost_mo
         ("u_mean_lu", f"{params.u_mean_lu:.4g}  ({u.velocity_phys(params.u_mean_lu):.4g} m/s)"),
         ("u_max_lu", f"{params.u_max_lu:.4g}  ({u.velocity_phys(params.u_max_lu):.4g} m/s)"),
         ("Mach", f"{params.mach_max:.3f}  (limit {scene.numerics.mach_limit:g})"),
+        ("u_max estimate", params.u_max_basis),
         ("Re", f"{params.reynolds:.4g}  (length {params.char_length_lu:g} nodes)"),
     ]
     if any(params.accel_lu):
@@ -117,6 +118,8 @@ def format_report(scene: Scene, params: LatticeParams, source: str = "", cost_mo
         ("estimated run time", f"{_duration(params.estimated_seconds)}  (lbmpipe.cost, {params.fluid_nodes * params.n_steps:.3g} node updates)"),
         ("estimated memory", _memory_text(scene)),
     ]
+    if scene.outputs.fields is not None:
+        derived.append(("field output", _field_output_size(scene, params)))
     if cost_model is not None and cost_model[0] is not None:
         from .reproduction.study import predict_seconds
 
@@ -155,6 +158,19 @@ def _memory_text(scene: Scene) -> str:
     avail, source = available_memory()
     of = f" of {format_bytes(avail)} available ({source})" if avail is not None else ""
     return f"{format_bytes(est['bytes'])}{of}"
+
+
+def _field_output_size(scene: Scene, params: LatticeParams) -> str:
+    """Disk (and memory) per field sample and for the run (``lbmpipe.fields``)."""
+    from .fields import bytes_per_sample, count_particles, memory_per_sample, sample_count
+
+    lat, parts = bytes_per_sample(scene, params)
+    n = sample_count(scene, params)
+    text = f"{lat / 1e6:.3g} MB lattice"
+    if parts:
+        text += f" + {parts / 1e6:.3g} MB particles ({count_particles(scene, params)} bodies)"
+    return text + (f" per sample, {n} samples: {n * (lat + parts) / 1e9:.3g} GB on disk; about "
+                   f"{memory_per_sample(scene, params) / 1e6:.3g} MB of memory while a sample is written")
 
 
 def _load(path: str) -> tuple[Scene, LatticeParams]:

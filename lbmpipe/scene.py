@@ -99,10 +99,12 @@ class Driving(_Model):
 class Initial(_Model):
     """Initial fluid state (density 1 everywhere)."""
 
-    velocity: Literal["parabolic", "rest"] = Field(
+    velocity: Literal["parabolic", "linear", "rest"] = Field(
         "rest",
-        description="`rest`, or `parabolic`: the steady Poiseuille profile of the pipe's driving (flow_rate: mean "
-        "velocity Q/A; body_force: centre-line g R^2 / (4 nu)). Pipe only.",
+        description="`rest`; `parabolic`: the steady Poiseuille profile of the pipe's driving (flow_rate: mean "
+        "velocity Q/A; body_force: centre-line g R^2 / (4 nu)), pipe only; `linear`: the steady Couette profile of "
+        "a box's moving walls (velocity linear across the walled axis from one face's velocity to the other's), "
+        "box with moving walls on its only walled axis.",
     )
 
 
@@ -148,11 +150,30 @@ class Run(_Model):
     threads: Optional[int] = Field(None, ge=1, description="Numba threads; null uses all cores.")
 
 
+class FieldOutput(_Model):
+    """Flow fields for ParaView (`lbmpipe/fields.py`): VTK image data of the lattice (velocity in
+    m/s, density in kg/m^3, solid mask; coordinates in mm) and, with particles, polydata of the
+    bodies, one file per sample under `fields/` and the time series `fields.pvd`. Off unless
+    given; `lbmpipe check` prints the size per sample."""
+
+    interval_s: float = Field(gt=0, description="Interval between field samples in s (rounded to whole time steps); the "
+                              "initial state and the last step are written too.")
+    fields: list[Literal["velocity", "density", "solid"]] = Field(
+        ["velocity", "density", "solid"], min_length=1,
+        description="Lattice fields to write: `velocity` (3 x float32), `density` (float32), `solid` (uint8: 0 fluid, "
+        "1 wall, 2 particle).")
+    particles: bool = Field(True, description="Scenes with particles: write their polydata (centre, orientation, "
+                            "velocity, angular velocity, shape and size per body) in the same series.")
+
+
 class Outputs(_Model):
     """Which outputs to record."""
 
-    profile: bool = Field(True, description="Pipe: time-averaged axial velocity profile (after spin-up).")
+    profile: bool = Field(True, description="Time-averaged velocity profile after spin-up: pipe, axial velocity "
+                          "against radius; box, plane averages of each velocity component along each walled axis.")
     flow_rate: bool = Field(True, description="Flow-rate time series.")
+    fields: Optional[FieldOutput] = Field(None, description="Flow-field files for ParaView (opt-in), e.g. "
+                                          "`{interval_s: 0.5}`; null writes none.")
 
 
 ShapeName = Literal["sphere", "cylinder", "cube"]
@@ -409,6 +430,24 @@ def _cross_field_errors(s: Scene) -> list[SceneError]:
     if s.initial.velocity == "parabolic" and not (d.kind == "pipe" and drv.kind in ("flow_rate", "body_force")):
         err("initial.velocity", "a parabolic initial profile is defined for a driven pipe only",
             "use initial.velocity: rest")
+    if s.initial.velocity == "linear":
+        walled = [a for a in AXES if getattr(d.walls, a) == "wall"] if d.kind == "box" else []
+        if d.kind != "box" or not d.moving_walls:
+            err("initial.velocity", "a linear initial profile is the Couette profile of a box's moving walls; this "
+                "scene has none", "use initial.velocity: rest, or add domain.moving_walls")
+        elif len(walled) != 1 or any(mw.side[0] != walled[0] for mw in d.moving_walls):
+            err("initial.velocity", f"a linear (Couette) profile needs exactly one walled axis holding the moving walls "
+                f"(walled: {', '.join(walled) or 'none'})", "wall a single axis, or use initial.velocity: rest")
+    fs = s.outputs.fields
+    if fs is not None:
+        if fs.interval_s < num.dt_s * (1 - MULTIPLE_RTOL):
+            err("outputs.fields.interval_s", f"field interval {_fmt(fs.interval_s)} s is shorter than one time step "
+                f"(numerics.dt_s = {_fmt(num.dt_s)} s)", f"set it to a multiple of {_fmt(num.dt_s)}")
+        if fs.interval_s > run.duration_s:
+            err("outputs.fields.interval_s", f"field interval {_fmt(fs.interval_s)} s is longer than run.duration_s = "
+                f"{_fmt(run.duration_s)} s", "lower outputs.fields.interval_s")
+        if len(set(fs.fields)) != len(fs.fields):
+            err("outputs.fields.fields", "a field is listed twice", "list each of velocity, density, solid once")
 
     if not run.spinup_s < run.duration_s:
         err("run.spinup_s", f"spin-up {_fmt(run.spinup_s)} s is not shorter than run.duration_s = {_fmt(run.duration_s)} s, "
@@ -815,7 +854,9 @@ satisfy these rules:
   `driving.kind: flow_rate` (then `nu = U D / Re`, `U = Q / (pi D^2 / 4)`).
 - `driving.kind: flow_rate` only for a pipe, with `flow_rate_m3_s`; `body_force` needs a non-zero
   `acceleration_m_s2` (in a pipe along z only); each of these two keys only with its own kind.
-- `initial.velocity: parabolic` only for a pipe driven by `flow_rate` or `body_force`.
+- `initial.velocity: parabolic` only for a pipe driven by `flow_rate` or `body_force`;
+  `initial.velocity: linear` only for a box with moving walls, all on its single walled axis.
+- `outputs.fields.interval_s` lies between `numerics.dt_s` and `run.duration_s`.
 - `run.spinup_s < run.duration_s`; `numerics.dt_s <= run.sample_interval_s <= run.duration_s`.
 - `particles`: each body or group gives exactly the sizes of its shape (sphere `diameter_mm`;
   cylinder `diameter_mm` and `length_mm`; cube `edge_mm`); a random group gives exactly one of
@@ -865,8 +906,11 @@ Lattice units have `dx = dt = 1` and density 1 = `fluid.density_kg_m3`.
 - `nu_lu = nu dt / dx^2`, `tau = 3 nu_lu + 1/2`, `omega = 1/tau`; TRT:
   `1/omega_minus = trt_magic / (tau - 1/2) + 1/2` (for BGK `omega_minus = omega`).
 - Expected centre-line velocity `u_max`: pipe flow_rate `2 Q/A`; pipe body_force `g R^2 / (4 nu)`;
-  box body_force `g H^2 / (8 nu)` across the narrowest walled gap `H` (or `g T` with no wall at
-  all); moving walls add their largest speed.
+  box body_force `g H^2 / (8 nu)` across the narrowest walled gap `H`; with no wall across the
+  force, fixed particles' Stokes drag balancing it (superficial `U = g V / (3 pi nu sum d_i)`,
+  volume-equivalent diameters, peak `2 U / (1 - phi)`: an estimate, the run-time guard checks the
+  real speed), or free acceleration `g T` when lower or with nothing to resist; moving walls add
+  their largest speed. `lbmpipe check` names the estimate used.
 - Rejected: `tau <= 1/2`; `u_max / c_s > numerics.mach_limit` (the message gives the largest `dt_s`
   that satisfies the limit; every lattice velocity scales with `dt` at fixed physics).
 - Reported: Reynolds number (pipe `U D / nu`, box `u_max H / nu`), step counts (durations rounded
@@ -880,7 +924,7 @@ Lattice units have `dx = dt = 1` and density 1 = `fluid.density_kg_m3`.
 def describe_fields() -> str:
     """Markdown reference of every scene field (the content of docs/scene.md)."""
     sections = [("(top level)", Scene)] + [(key, _model_at((key,))) for key in Scene.model_fields if _model_at((key,))]
-    sections += [("domain.walls", Walls), ("domain.moving_walls[i]", MovingWall),
+    sections += [("domain.walls", Walls), ("domain.moving_walls[i]", MovingWall), ("outputs.fields", FieldOutput),
                  ("particles.bodies[i]", ParticleBody), ("particles.random[i]", RandomParticles),
                  ("particles.packed[i]", PackedParticles), ("particles.collisions", Collisions)]
     lines = [_DOC_HEAD]

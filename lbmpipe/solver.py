@@ -190,6 +190,12 @@ def simulation_from_scene(scene, params, guard: bool = True) -> Simulation:
         r = np.sqrt(x[:, None] ** 2 + y[None, :] ** 2)
         uz = obs.poiseuille_pipe(r, grid.radius, 2.0 * params.u_mean_lu)[:, :, None]
         sim.set_equilibrium(1.0, (0.0, 0.0, uz))
+    if scene.initial.velocity == "linear" and grid.kind == "box":
+        a = next(b for b in range(3) if not grid.periodic[b])  # the walled axis (the scene checks it is one)
+        w = params.wall_velocities_lu
+        lo, hi = w.get(f"{'xyz'[a]}-", (0.0, 0.0, 0.0)), w.get(f"{'xyz'[a]}+", (0.0, 0.0, 0.0))
+        u = obs.couette_box(grid.positions()[a], float(params.shape[a]), lo, hi)
+        sim.set_equilibrium(1.0, [np.expand_dims(c, tuple(b for b in range(3) if b != a)) for c in u])
     if guard:
         from .guard import guard_for
 
@@ -246,6 +252,10 @@ class Reporter:
     a checkpoint may be written), ``finish`` with the loop's status once it ends (inside the loop's
     guard: it may raise ``Unstable``). Reporters that write outputs do so in ``write``, after."""
 
+    def steps_to_next(self, step: int) -> int | None:
+        """Steps from ``step`` to the next one this reporter must see in ``advanced`` (None: any)."""
+        return None
+
     def advanced(self, sim: Simulation, steps: int) -> None:
         pass
 
@@ -282,6 +292,10 @@ def run_loop(sim: Simulation, n_steps: int, every: int, reporters=(), *, stop_at
                 chunk = min(every - sim.step_count % every, n_steps - sim.step_count)
                 if stop_at_step is not None and sim.step_count < stop_at_step:
                     chunk = min(chunk, stop_at_step - sim.step_count)
+                for r in reporters:
+                    limit = r.steps_to_next(sim.step_count)
+                    if limit is not None:
+                        chunk = min(chunk, limit)
                 sim.step(chunk)
                 for r in reporters:
                     r.advanced(sim, chunk)
@@ -420,6 +434,36 @@ class ProfileAccumulator(Reporter):
             summary["flow_rate_m3_s"] = units.flow_rate_phys(q)
 
 
+class PlaneSamples(Reporter):
+    """A box's ``profile.csv`` (``profiles.PlaneProfile``): plane averages of each velocity
+    component across its walled axes, over the samples after spin-up."""
+
+    def __init__(self, profile, spinup: int):
+        self.profile, self.spinup = profile, spinup
+
+    def sample(self, sim, sample):
+        if sim.step_count > self.spinup:
+            _, ux, uy, uz, fluid = sample.moments
+            self.profile.add((ux, uy, uz), fluid)
+        return None
+
+
+class FieldSamples(Reporter):
+    """VTK files of the fields and the particles (``fields.FieldWriter``, ``outputs.fields``) at
+    their own interval: the loop stops at each of their steps."""
+
+    def __init__(self, writer, sim, resumed: bool):
+        self.writer = writer
+        writer.start(sim, resumed=resumed)
+
+    def steps_to_next(self, step: int) -> int:
+        return self.writer.steps_to_next(step)
+
+    def advanced(self, sim, steps):
+        if self.writer.due(sim.step_count):
+            self.writer.sample(sim, sim.step_count)
+
+
 class Progress(Reporter):
     """The progress bar: steps done, simulated time and throughput."""
 
@@ -470,6 +514,8 @@ class CheckpointWriter(Reporter):
         if st.particles is not None and sim.particles.n:
             rows, n = arrs["particle_rows"], sim.particles.n
             st.particles.recorder.rows = [rows[i:i + n].copy() for i in range(0, len(rows), n)]
+        if st.planes is not None and "plane_samples" in arrs:
+            st.planes.profile.restore(arrs)
         return True
 
     def save(self, sim) -> None:
@@ -484,7 +530,8 @@ class CheckpointWriter(Reporter):
                    run={"mass0": st.mass0, "n_avg": st.profile.n_avg, "wall_seconds": st.wall()},
                    run_arrays={"uz_sum": st.profile.uz_sum, "uz_cnt": st.profile.uz_cnt,
                                "series": np.array(st.flow.rows, dtype=np.float64).reshape(-1, 4),
-                               "particle_rows": rows})
+                               "particle_rows": rows,
+                               **(st.planes.profile.state() if st.planes is not None else {})})
         self.written += 1
 
     def between(self, sim):
@@ -519,6 +566,7 @@ class _RunState:
     profile: ProfileAccumulator
     particles: ParticleSamples | None
     mass0: float
+    planes: PlaneSamples | None = None
     wall_before: float = 0.0
     t0: float = 0.0
 
@@ -551,6 +599,8 @@ def run_scene(scene, params, out_dir: Path, progress: bool = True, max_steps: in
     a run into parts, and for tests).
     """
     from . import outputs
+    from .fields import FieldWriter
+    from .profiles import PlaneProfile
 
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -562,11 +612,16 @@ def run_scene(scene, params, out_dir: Path, progress: bool = True, max_steps: in
     spinup = min(params.spinup_steps, n_steps)
     every = params.sample_every
     profile = ProfileAccumulator(grid, spinup)
+    planes = PlaneProfile.for_grid(grid)  # a box's profile across its walls
     run = _RunState(flow=FlowRateSeries(), profile=profile,
-                    particles=ParticleSamples(sim, units) if sim.particles is not None else None, mass0=sim.mass())
+                    particles=ParticleSamples(sim, units) if sim.particles is not None else None, mass0=sim.mass(),
+                    planes=PlaneSamples(planes, spinup) if planes is not None else None)
+    field_writer = FieldWriter.from_scene(scene, params, grid, out_dir, n_steps)
     writer = CheckpointWriter(checkpoint, scene, checkpoint_every_s, keep_checkpoint, run) if checkpoint else None
     if not (writer is not None and writer.resume(sim)) and run.particles is not None:
         run.particles.recorder.sample(0)
+    fields = FieldSamples(field_writer, sim, resumed=writer is not None and writer.resumed_from is not None) \
+        if field_writer is not None else None
     bar = Progress(n_steps, units, grid.n_fluid, progress)
     if sim.step_count:
         bar.bar.update(min(sim.step_count, n_steps))
@@ -576,8 +631,8 @@ def run_scene(scene, params, out_dir: Path, progress: bool = True, max_steps: in
     if writer is not None:
         writer.last = run.t0
     setup_seconds = run.t0 - t_build
-    reporters = [FiniteState(), run.flow, *([run.particles] if run.particles else []), profile, bar,
-                 *([writer] if writer else [])]
+    reporters = [*([fields] if fields else []), FiniteState(), run.flow, *([run.particles] if run.particles else []),
+                 profile, *([run.planes] if run.planes else []), bar, *([writer] if writer else [])]
     outcome = run_loop(sim, n_steps, every, reporters, stop_at_step=stop_at_step)
     wall = run.wall()
     bar.bar.close()
@@ -610,6 +665,10 @@ def run_scene(scene, params, out_dir: Path, progress: bool = True, max_steps: in
     if run.particles is not None:
         run.particles.write(out_dir, summary, files, scene, sim, mass0)
     profile.write(out_dir, summary, files, scene, params, run.flow.rows)
+    if fields is not None:
+        files.update(dict.fromkeys(field_writer.close(), True))
+    if run.planes is not None and run.planes.profile.samples[0] > 0 and scene.outputs.profile:
+        files[planes.write(out_dir, units)] = True
     summary["files"] = sorted(files)
     outputs.write_summary(out_dir, summary, scene, params)
     if writer is not None:

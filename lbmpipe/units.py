@@ -166,6 +166,7 @@ class LatticeParams:
     # Additions beyond the shared contract (all with defaults):
     fluid_nodes: int = 0  # nodes whose centre is inside the fluid (pipe: inside the circle)
     char_length_lu: float = 0.0  # length used in `reynolds`
+    u_max_basis: str = ""  # which estimate gave u_max (printed by `lbmpipe check`)
     warnings: tuple[str, ...] = field(default=())
 
 
@@ -199,15 +200,52 @@ def physical_viscosity(scene) -> float:
     return u_mean * d_m / fluid.reynolds
 
 
+#: Stokes-drag estimate of a periodic box with fixed bodies: peak over superficial speed
+STOKES_PEAK_FACTOR = 2.0
+
+
+def _fixed_bodies(scene: "Scene", shape: tuple[int, int, int]) -> tuple[int, float, float]:
+    """(count, sum of volume-equivalent diameters, total volume) of the scene's fixed particles,
+    lattice units; groups given by concentration count as ``lbmpipe.particles.placement`` places them."""
+    ps = scene.particles
+    if ps is None:
+        return 0, 0.0, 0.0
+    dx = scene.numerics.dx_mm
+    box = float(shape[0] * shape[1] * shape[2])
+
+    def vol(p) -> float:
+        if p.shape == "sphere":
+            return math.pi / 6.0 * (p.diameter_mm / dx) ** 3
+        if p.shape == "cylinder":
+            return math.pi / 4.0 * (p.diameter_mm / dx) ** 2 * (p.length_mm / dx)
+        return (p.edge_mm / dx) ** 3
+
+    n, d_sum, v_sum = 0, 0.0, 0.0
+    for p in [b for b in ps.bodies if b.fixed] + [g for g in ps.random if g.fixed]:
+        v = vol(p)
+        k = 1 if not hasattr(p, "count") else (p.count or max(1, int(round(p.concentration * box / v))))
+        n += k
+        d_sum += k * (6.0 * v / math.pi) ** (1.0 / 3.0)
+        v_sum += k * v
+    return n, d_sum, v_sum
+
+
 def _expected_velocities(
     scene, shape: tuple[int, int, int], nu_lu: float, accel_lu: tuple[float, float, float],
     flow_rate_lu: float | None, wall_velocities_lu: dict[str, tuple[float, float, float]], n_steps: int,
-) -> tuple[float, float, float]:
-    """(u_mean, u_max, characteristic length) of the expected flow, lattice units.
+) -> tuple[float, float, float, str]:
+    """(u_mean, u_max, characteristic length, basis) of the expected flow, lattice units; basis
+    names the estimate behind ``u_max``.
 
     Box: ``u_max`` is an upper bound (plane Poiseuille across the narrowest walled gap plus the
     fastest wall), ``u_mean`` the plane-flow estimate (2/3 of the Poiseuille maximum, half of
-    each wall speed).
+    each wall speed). Along an axis with no wall across it, fixed particles hold the flow back:
+    their Stokes drag balances the body force, ``g V = 3 pi nu U sum(d_i)`` with ``d_i`` the
+    volume-equivalent diameters (an upper bound on the superficial speed ``U``: the sphere has
+    the least Stokes drag of all bodies of its volume, and neighbours raise the drag of each body,
+    Hasimoto's periodic arrays); the peak is taken as ``STOKES_PEAK_FACTOR U / (1 - phi)``, and
+    no higher than free acceleration ``g T``. This is an estimate, not a bound; the run-time guard
+    (``lbmpipe.guard``) watches the real speed. With nothing to resist, free acceleration ``g T``.
 
     Half-way bounce-back puts walls half a link outside the outermost fluid nodes, so a pipe of
     ``n_d`` nodes has radius ``n_d / 2`` and a channel of ``n`` nodes has width ``n``.
@@ -218,16 +256,18 @@ def _expected_velocities(
         radius = shape[0] / 2.0
         if kind == "flow_rate":
             u_mean = flow_rate_lu / (math.pi * radius**2)
-            return u_mean, 2.0 * u_mean, 2.0 * radius
+            return u_mean, 2.0 * u_mean, 2.0 * radius, "Poiseuille centre line 2 Q / A"
         if kind == "body_force":
             u_max = abs(accel_lu[2]) * radius**2 / (4.0 * nu_lu)  # Hagen-Poiseuille
-            return u_max / 2.0, u_max, 2.0 * radius
-        return 0.0, 0.0, 2.0 * radius
+            return u_max / 2.0, u_max, 2.0 * radius, "Hagen-Poiseuille centre line g R^2 / (4 nu)"
+        return 0.0, 0.0, 2.0 * radius, "no driving"
 
     walled = [a for a, axis in enumerate("xyz") if getattr(dom.walls, axis) == "wall"]
     char_len = float(min(shape[a] for a in walled)) if walled else float(min(shape))
     u_force_sq = 0.0
     mean_vec = [0.0, 0.0, 0.0]
+    basis: list[str] = []
+    n_fixed, d_sum, v_fixed = _fixed_bodies(scene, shape)
     if kind == "body_force":
         for a in range(3):
             g = accel_lu[a]
@@ -238,9 +278,21 @@ def _expected_velocities(
                 # Plane Poiseuille across the narrowest walled gap bounds any duct flow from above.
                 u_a = abs(g) * min(across) ** 2 / (8.0 * nu_lu)
                 mean_vec[a] += math.copysign(2.0 / 3.0 * u_a, g)
+                basis.append(f"{'xyz'[a]}: plane Poiseuille g H^2 / (8 nu) across the narrowest walled gap")
             else:
-                u_a = abs(g) * n_steps  # nothing resists: uniform acceleration until the end of the run
-                mean_vec[a] += math.copysign(u_a, g)
+                u_free = abs(g) * n_steps  # nothing resists: uniform acceleration until the end of the run
+                box = float(shape[0] * shape[1] * shape[2])
+                u_stokes = abs(g) * (box - v_fixed) / (3.0 * math.pi * nu_lu * d_sum) if d_sum > 0 else math.inf
+                u_peak = STOKES_PEAK_FACTOR * u_stokes / max(1.0 - v_fixed / box, 1e-3)
+                if u_peak < u_free:
+                    u_a = u_peak
+                    mean_vec[a] += math.copysign(u_stokes, g)
+                    basis.append(f"{'xyz'[a]}: Stokes drag of the {n_fixed} fixed particle(s) balancing the body force, "
+                                 f"peak {STOKES_PEAK_FACTOR:g} U / (1 - phi) (an estimate; the run-time guard checks the speed)")
+                else:
+                    u_a = u_free
+                    mean_vec[a] += math.copysign(u_a, g)
+                    basis.append(f"{'xyz'[a]}: free acceleration g T over the run (nothing resists)")
             u_force_sq += u_a**2
     for v in wall_velocities_lu.values():
         # Each sliding face drives a linear (Couette) profile falling to 0 at the opposite face.
@@ -250,7 +302,9 @@ def _expected_velocities(
     # Stokes flows superpose, so the sum bounds the centre-line speed of the combined flow.
     u_max = math.sqrt(u_force_sq) + u_walls
     u_mean = math.sqrt(sum(c * c for c in mean_vec))
-    return u_mean, u_max, char_len
+    if u_walls:
+        basis.append("fastest moving wall")
+    return u_mean, u_max, char_len, " + ".join(basis) or "no driving"
 
 
 def derive(scene) -> LatticeParams:
@@ -308,7 +362,7 @@ def derive(scene) -> LatticeParams:
             "lower run.spinup_s or raise run.duration_s",
         )
 
-    u_mean, u_max, char_len = _expected_velocities(
+    u_mean, u_max, char_len, basis = _expected_velocities(
         scene, shape, nu_lu, accel_lu, flow_rate_lu, wall_velocities_lu, n_steps
     )
     mach = u_max / CS
@@ -319,8 +373,8 @@ def derive(scene) -> LatticeParams:
         tau_ok = 0.5 + (tau - 0.5) * dt_ok / num.dt_s
         raise SceneError(
             "numerics.dt_s",
-            f"Mach {mach:.3g} exceeds numerics.mach_limit {num.mach_limit:g} (centre-line "
-            f"u_max = {u_max:.3g} lattice units)",
+            f"Mach {mach:.3g} exceeds numerics.mach_limit {num.mach_limit:g} (expected "
+            f"u_max = {u_max:.3g} lattice units from {basis})",
             f"reduce numerics.dt_s to <= {dt_ok:.3g} s (keeps Re; tau becomes {tau_ok:.3g}), "
             "or raise numerics.mach_limit to accept the compressibility error (~Ma^2)",
         )
@@ -352,7 +406,7 @@ def derive(scene) -> LatticeParams:
         u_mean_lu=u_mean, u_max_lu=u_max, mach_max=mach, reynolds=reynolds, accel_lu=accel_lu,
         flow_rate_lu=flow_rate_lu, wall_velocities_lu=wall_velocities_lu, n_steps=n_steps,
         spinup_steps=spinup_steps, sample_every=sample_every, estimated_seconds=0.0,
-        fluid_nodes=cost.fluid_nodes(dom.kind, shape), char_length_lu=char_len,
+        fluid_nodes=cost.fluid_nodes(dom.kind, shape), char_length_lu=char_len, u_max_basis=basis,
         warnings=tuple(warnings),
     )
     return replace(params, estimated_seconds=cost.estimate_seconds(params, threads=run.threads))

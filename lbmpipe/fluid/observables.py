@@ -105,3 +105,11 @@ def poiseuille_pipe(r: np.ndarray, radius: float, u_max: float) -> np.ndarray:
 
 def relative_l2(u: np.ndarray, u_ref: np.ndarray) -> float:
     return float(np.sqrt(np.sum((u - u_ref) ** 2) / np.sum(u_ref**2)))
+
+
+def couette_box(coord: np.ndarray, height: float, u_lo, u_hi) -> list[np.ndarray]:
+    """Steady plane Couette profile between walls at ``0`` and ``height`` (half-way bounce-back:
+    half a link outside the outermost nodes) moving with ``u_lo`` and ``u_hi`` (3-vectors):
+    ``u(s) = u_lo + (u_hi - u_lo) s / height`` at node coordinates ``coord`` (lattice units)."""
+    s = np.asarray(coord, dtype=np.float64) / height
+    return [u_lo[k] + (u_hi[k] - u_lo[k]) * s for k in range(3)]
