@@ -270,7 +270,8 @@ def _bars(ax, groups: list[str], series: list[tuple], width=None, hatches=None):
     for x, m in pending:
         _mark(ax, x, m)
     for x, y, text in flag_text:  # flags that differ between the bars of one series: named at the bar
-        ax.text(x, y + 0.02 * ax.get_ylim()[1], text, rotation=90, ha="center", va="bottom", fontsize=6.5, color="0.25", style="italic")
+        ax.text(x, y + 0.02 * ax.get_ylim()[1], text, rotation=90, ha="center", va="bottom", fontsize=6.5,
+                color="0.25", style="italic")
 
 
 # ----------------------------------------------------------------------------------------------
@@ -719,7 +720,8 @@ def make_figures(fid_dir: Path, fidelity: str, cases: dict | None = None) -> lis
         if not cfg.get("particles") and np.isclose(float(cfg.get("reynolds", np.nan)), 26.0):
             flow_case = name
             break
-    profiles = {_flagged("no particles, Re 26", flags.get(flow_case, [])): fid_dir / "cases" / flow_case / "profile.csv",
+    profiles = {_flagged("no particles, Re 26", flags.get(flow_case, [])):
+                    fid_dir / "cases" / flow_case / "profile.csv",
                 _flagged("cylinders 16x16 mm, 30 %, Re 26", flags.get(cyl_case, [])):
                     (fid_dir / "cases" / cyl_case / "profile.csv") if cyl_case else None}
     out += velocity_profiles(profiles, figs / "fig10_profiles", title=f"Fig. 10: axial velocity profiles ({lvl})",

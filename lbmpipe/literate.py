@@ -46,8 +46,9 @@ EQUATIONS: dict[int, str] = {
        r"(\mathbf{x} + \tfrac{1}{2}\mathbf{e}_i - \mathbf{X})$ (Ladd's moving bounce-back)",
     9: r"$\mathbf{F}(\mathbf{x} + \tfrac{1}{2}\mathbf{e}_i, t + \tfrac{1}{2}) = 2\,\mathbf{e}_i\left[f_i(\mathbf{x}, "
        r"t_+) - B_i\,(\mathbf{e}_i \cdot \mathbf{u}_b)\right]$ (force on a boundary link)",
-    10: r"$\mathbf{T}(\mathbf{x} + \tfrac{1}{2}\mathbf{e}_i, t + \tfrac{1}{2}) = (\mathbf{x} + \tfrac{1}{2}\mathbf{e}_i "
-        r"- \mathbf{X}) \times \mathbf{F}(\mathbf{x} + \tfrac{1}{2}\mathbf{e}_i, t + \tfrac{1}{2})$ (torque of a link)",
+    10: r"$\mathbf{T}(\mathbf{x} + \tfrac{1}{2}\mathbf{e}_i, t + \tfrac{1}{2}) = "
+        r"(\mathbf{x} + \tfrac{1}{2}\mathbf{e}_i - \mathbf{X}) \times "
+        r"\mathbf{F}(\mathbf{x} + \tfrac{1}{2}\mathbf{e}_i, t + \tfrac{1}{2})$ (torque of a link)",
     11: r"$\mathbf{F}_p = \sum_{\mathrm{links}} \mathbf{F}(\mathbf{x} + \tfrac{1}{2}\mathbf{e}_i, t + \tfrac{1}{2})$ "
         r"(total force on a particle)",
     12: r"$\mathbf{T}_p = \sum_{\mathrm{links}} \mathbf{T}(\mathbf{x} + \tfrac{1}{2}\mathbf{e}_i, t + \tfrac{1}{2})$ "
@@ -56,7 +57,8 @@ EQUATIONS: dict[int, str] = {
         r"cyclic (Euler's equations, body frame)",
     14: r"orientation as a unit quaternion $q = (q_0, q_1, q_2, q_3)$ (Evans 1977), no Euler-angle singularity",
     15: r"quaternion kinematics $\frac{dq}{dt} = \frac{1}{2}\, q \otimes (0, \boldsymbol{\Omega}_{\mathrm{body}})$",
-    16: r"$m_1 \mathbf{v}_1' = m_1 \mathbf{v}_1 - I\,\mathbf{p}$, $m_2 \mathbf{v}_2' = m_2 \mathbf{v}_2 + I\,\mathbf{p}$ "
+    16: r"$m_1 \mathbf{v}_1' = m_1 \mathbf{v}_1 - I\,\mathbf{p}$, "
+        r"$m_2 \mathbf{v}_2' = m_2 \mathbf{v}_2 + I\,\mathbf{p}$ "
         r"(collision impulse $I$, normal $\mathbf{p}$ from 1 to 2)",
     17: r"$k = -\frac{v_{1p}' - v_{2p}'}{v_{1p} - v_{2p}}$ (restitution; normal contact-point velocities)",
     18: r"$J_1 \boldsymbol{\omega}_{1s}' = J_1 \boldsymbol{\omega}_{1s} - \mathbf{l}_{1s} \times (I\,\mathbf{p}_s)$, "

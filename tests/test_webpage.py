@@ -7,6 +7,7 @@ resolves. Skipped, with the reason, where Chromium or its driver is missing (.ci
 
 from __future__ import annotations
 
+import importlib.util
 import re
 import shutil
 import time
@@ -26,7 +27,8 @@ Intro with $u = Q / A$ inline.
 
 ## Method
 
-- **Eq. (3)** $f_i^{eq} = \rho w_i \left[1 + \frac{3\,\mathbf{e}_i \cdot \mathbf{u}}{c^2}\right]$ — [code](../x.py#L1 "Eq. 3: f")
+- **Eq. (3)** $f_i^{eq} = \rho w_i \left[1 + \frac{3\,\mathbf{e}_i \cdot \mathbf{u}}{c^2}\right]$ —
+  [code](../x.py#L1 "Eq. 3: f")
 
 $$\frac{dq}{dt} = \frac{1}{2}\, q \otimes (0, \boldsymbol{\Omega})$$
 
@@ -84,12 +86,7 @@ def test_a_formula_latex2mathml_cannot_read_stops_the_build_naming_it(formula):
 CHROMIUM = shutil.which("chromium") or ("/usr/bin/chromium" if Path("/usr/bin/chromium").exists() else None)
 CHROMEDRIVER = shutil.which("chromedriver") or (
     "/usr/bin/chromedriver" if Path("/usr/bin/chromedriver").exists() else None)
-try:
-    import selenium  # noqa: F401
-
-    SELENIUM = True
-except ImportError:
-    SELENIUM = False
+SELENIUM = importlib.util.find_spec("selenium") is not None
 
 needs_browser = pytest.mark.skipif(
     not (CHROMIUM and CHROMEDRIVER and SELENIUM),
