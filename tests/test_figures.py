@@ -181,3 +181,114 @@ def test_cylinder_mesh_is_closed_around_its_axis_and_cube_faces_lie_on_the_cube(
     # each face has one coordinate pinned at +-4 and spans the other two
     assert np.all(np.sum(np.isclose(np.abs(cube), 4.0), axis=2) == 3)
     np.testing.assert_allclose(np.sort(cube.reshape(-1, 3).max(axis=0)), [4.0, 4.0, 4.0])
+
+
+# ------------------------------------------------------------------------------------------------
+# isotropic reference, flagged cases, the layout of Fig. 9
+
+@pytest.mark.parametrize("kind", ["cyl_axis_angle", "cube_axis_angle", "cube_projected_angle"])
+def test_isotropic_bin_fractions_equal_those_of_random_orientations_through_the_angle_definitions(kind):
+    # Haar-uniform rotations: normalised 4-D Gaussian quaternions, through the same angle code as the runs
+    n = 200_000
+    q = np.random.default_rng(7).normal(size=(n, 4))
+    hi = {k: h for kinds in S.ORIENTATION_KINDS.values() for k, h, _ in kinds}[kind]
+    edges = np.linspace(0.0, hi, 10)
+    ref = S.isotropic_bin_fractions(kind, edges)
+    counts = np.histogram(S.orientation_angles(kind, q), edges)[0] / n
+    assert ref.sum() == pytest.approx(1.0, abs=1e-12)
+    assert np.all(np.abs(counts - ref) < 5.0 * np.sqrt(ref * (1 - ref) / n)), (counts, ref)
+
+
+def test_nearest_cube_axis_reference_is_continuous_where_the_cells_start_to_bound_it():
+    eps = 1e-7
+    lo, hi = S.isotropic_cdf("cube_axis_angle", [45.0 - eps, 45.0 + eps])
+    assert hi - lo < 1e-6
+    assert S.isotropic_cdf("cube_axis_angle", S.CUBE_MAX_AXIS_ANGLE_DEG) == pytest.approx(1.0, abs=1e-12)
+    assert np.all(np.diff(S.isotropic_cdf("cube_axis_angle", np.linspace(0, 55, 200))) >= 0)
+
+
+@pytest.fixture
+def drawn(monkeypatch):
+    """Per saved figure: the y-values of its dashed reference segments per axes, the y-limits per
+    axes, whether any bar is hatched, and all its text."""
+    seen = {}
+    real = F.save
+
+    def spy(fig, stem):
+        from matplotlib.collections import LineCollection
+        from matplotlib.patches import Rectangle
+
+        refs, ylims, hatched = [], [], False
+        for ax in fig.axes:
+            segs = [c.get_segments() for c in ax.collections if isinstance(c, LineCollection)
+                    and "isotropic" in str(c.get_label())]
+            refs.append([s[0][1] for seg in segs for s in seg])
+            ylims.append(ax.get_ylim())
+            hatched |= any(p.get_hatch() for p in ax.patches if isinstance(p, Rectangle))
+        seen[str(stem).rsplit("/", 1)[-1]] = {"refs": refs, "ylims": ylims, "hatched": hatched,
+                                              "text": _texts(fig)}
+        return real(fig, stem)
+
+    monkeypatch.setattr(F, "save", spy)
+    return seen
+
+
+def test_orientation_figures_draw_the_isotropic_fraction_of_each_plotted_bin(tmp_path, drawn):
+    fid = tmp_path / "smoke"
+    _synthetic_tables(fid)
+    F.make_figures(fid, "smoke")
+    cyl = S.isotropic_bin_fractions("cyl_axis_angle", np.linspace(0, 90, 10))
+    for refs in drawn["fig8_cylinder_orientation"]["refs"]:
+        assert np.allclose(refs, cyl)
+    cube = {len(r) and round(r[0], 6) for r in drawn["fig9_cube_orientation"]["refs"]}
+    projected = S.isotropic_bin_fractions("cube_projected_angle", np.linspace(0, 45, 10))
+    axis = S.isotropic_bin_fractions("cube_axis_angle", np.linspace(0, S.CUBE_MAX_AXIS_ANGLE_DEG, 10))
+    assert np.allclose(projected, 1 / 9)
+    assert cube == {round(projected[0], 6), round(axis[0], 6)}
+    assert "1/9" in drawn["fig9_cube_orientation"]["text"]
+
+
+def test_a_cube_case_locked_in_one_bin_does_not_flatten_the_other_sizes_in_fig9(tmp_path, drawn):
+    fid = tmp_path / "smoke"
+    _synthetic_tables(fid)
+    t = pd.read_csv(fid / "tables" / "orientation.csv")
+    locked = (t["size_label"] == "24 mm") & (t["reynolds"] == 9.4)
+    t.loc[locked, "fraction"] = np.where(t.loc[locked, "bin_lo_deg"] == 0.0, 1.0, 0.0)
+    F.cube_orientation(t, fid / "figures" / "fig9_cube_orientation")
+    ylims = drawn["fig9_cube_orientation"]["ylims"][:12]  # 3 sizes x 4 panels, then nothing else
+    tops = np.array([y[1] for y in ylims]).reshape(3, 4)
+    assert tops[2].min() >= 1.0  # the locked 24 mm row shows its bar whole
+    assert tops[0].max() < 0.6 and tops[1].max() < 0.6  # the 8 and 16 mm rows keep their own scale
+
+
+def test_flagged_cases_from_tables_or_stats_are_hatched_and_named_in_every_figure_showing_them(tmp_path, drawn):
+    fid = tmp_path / "smoke"
+    _synthetic_tables(fid)
+    pd.DataFrame({"case": ["cylinder16x16_c30_re26"], "flags": ["unhealthy"]}).to_csv(
+        fid / "tables" / "health.csv", index=False)
+    (fid / "cases" / "cube24_c30_re9.4").mkdir(parents=True)
+    (fid / "cases" / "cube24_c30_re9.4" / "stats.json").write_text(json.dumps({"flags": {"locked": True}}))
+    assert F.read_case_flags(fid) == {"cylinder16x16_c30_re26": ["unhealthy"], "cube24_c30_re9.4": ["locked"]}
+    F.make_figures(fid, "smoke")
+    for stem in ("fig4_cylinders_re26", "fig7b_shape_re26", "fig8_cylinder_orientation", "fig10_profiles"):
+        assert "unhealthy" in drawn[stem]["text"], stem
+    for stem in ("fig6_cubes24_reynolds", "fig7a_shape_re9.4", "fig9_cube_orientation"):
+        assert "locked" in drawn[stem]["text"] and drawn[stem]["hatched"], stem
+    for stem in ("fig5_cubes8_concentration",):
+        assert "flagged" not in drawn[stem]["text"] and not drawn[stem]["hatched"]
+
+
+def test_case_flags_read_a_flags_column_and_true_flag_columns():
+    row = pd.Series({"case": "c", "flags": "frozen; locked", "flag_unhealthy": True, "flag_jammed": False})
+    assert F.case_flags(row) == ["frozen", "locked", "unhealthy"]
+    assert F.case_flags(pd.Series({"case": "c", "flags": np.nan})) == []
+
+
+def test_report_captions_are_the_figure_captions_and_say_the_experimental_data_are_not_drawn():
+    from pathlib import Path
+
+    report = Path(__file__).resolve().parents[1] / "workflow" / "report"
+    for stem in FIG_STEMS:  # Figs. 4-10 (the pipeline's figures rule)
+        assert (report / f"{stem}.rst").read_text(encoding="utf-8").strip() == F.FIGURE_CAPTIONS[stem], stem
+    for stem in ("fig4_cylinders_re26", "fig8_cylinder_orientation", "fig9_cube_orientation"):
+        assert "Zitoun et al. 2001" in F.FIGURE_CAPTIONS[stem] and "not drawn" in F.FIGURE_CAPTIONS[stem]

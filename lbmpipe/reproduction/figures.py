@@ -6,6 +6,14 @@ entry point. Cases are picked by their metadata columns (shape, size, concentrat
 number, collisions), never by parsing names. A case the figure needs but which is missing from
 the table or did not complete (e.g. status ``unpackable``) is marked with a text at its place
 ("not packable", "not run", ...), never dropped silently.
+
+Every figure is drawn in the style ``lbmpipe/lbmpipe.mplstyle`` (applied on import). A case that
+carries a flag (:func:`case_flags`: a ``flags`` column or ``flag_<name>`` columns of the tables, or
+``flags`` in its ``stats.json``/``summary.json``; e.g. frozen, locked, unhealthy) keeps its bars,
+hatched, with the flag named in the legend or the panel title. The orientation histograms (Figs. 8,
+9) carry the fraction a uniformly random orientation puts in each plotted bin
+(:func:`lbmpipe.statistics.isotropic_bin_fractions`, closed form). The paper's experimental
+values (Zitoun et al. 2001) are not available to us and are not drawn.
 """
 
 from __future__ import annotations
@@ -20,6 +28,10 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
 
+#: The style of every figure of the package (package data beside this module).
+STYLE = Path(__file__).with_name("lbmpipe.mplstyle")
+plt.style.use(STYLE)
+
 AXES = ("x", "y", "z")
 AXIS_LABELS = (r"$|\Omega_x|$", r"$|\Omega_y|$", r"$|\Omega_z|$")
 OMEGA_YLABEL = "mean angular velocity |Ω| (rad/s)"
@@ -33,32 +45,44 @@ FIGURE_CAPTIONS = {
     "fig4_cylinders_re26": (
         "Mean |Ω| about the lab x, y and z axes (rad/s) of 16x16 mm and 16x24 mm cylinders at 30 % concentration, "
         "Re 26, over all particles and samples after spin-up; error bars are 95 % confidence half-widths from "
-        "batch means of the particle-averaged time series."),
+        "batch means of the particle-averaged time series. The paper's experimental values (Zitoun et al. 2001) are "
+        "not available to us and are not drawn; hatched bars mark a flagged case (flag named in the legend)."),
     "fig5_cubes8_concentration": (
         "Mean |Ω| about x, y, z (rad/s) of 8 mm cubes at Re 9.4, 30 % (LC) against 50 % (HC) concentration; "
-        "error bars are 95 % batch-means confidence half-widths."),
+        "error bars are 95 % batch-means confidence half-widths. Hatched bars mark a flagged case (flag named in the "
+        "legend)."),
     "fig6_cubes24_reynolds": (
         "Mean |Ω| about x, y, z (rad/s) of 24 mm cubes at 30 % concentration, Re 9.4 (LF) against Re 26 (HF); "
-        "error bars are 95 % batch-means confidence half-widths."),
+        "error bars are 95 % batch-means confidence half-widths. Hatched bars mark a flagged case (flag named in the "
+        "legend)."),
     "fig7a_shape_re9.4": (
         "Cubes (8, 16, 24 mm) against cylinders of the same size (8x8, 16x16 mm; no 24 mm cylinder in the study), "
-        "30 % concentration, Re 9.4: mean |Ω| about x, y, z (rad/s) with 95 % batch-means confidence half-widths."),
+        "30 % concentration, Re 9.4: mean |Ω| about x, y, z (rad/s) with 95 % batch-means confidence half-widths. "
+        "Hatched bars mark a flagged case (flag named at the bar)."),
     "fig7b_shape_re26": (
         "As Fig. 7a at Re 26: cubes (8, 16, 24 mm) against cylinders 8x8 and 16x16 mm, 30 % concentration, "
-        "mean |Ω| about x, y, z (rad/s) with 95 % batch-means confidence half-widths."),
+        "mean |Ω| about x, y, z (rad/s) with 95 % batch-means confidence half-widths. Hatched bars mark a flagged "
+        "case (flag named at the bar)."),
     "fig8_cylinder_orientation": (
         "Distribution of the angle between the cylinder axis and the pipe axis (deg; fraction of particle-samples "
         "after spin-up per 10 deg bin) for the four cylinder sizes at 30 % concentration, Re 9.4 and Re 26; "
-        "error bars are 95 % batch-means confidence half-widths of the per-sample bin fraction."),
+        "error bars are 95 % batch-means confidence half-widths of the per-sample bin fraction. Black dashes: the "
+        "fraction a uniformly random (isotropic) orientation puts in each bin, 1 - cos θ integrated over the bin. "
+        "The paper's experimental distribution (its Fig. 8b, Zitoun et al. 2001) is not available to us and is not "
+        "drawn; hatched bars mark a flagged case (flag named in the legend)."),
     "fig9_cube_orientation": (
-        "Cube orientation at 30 % concentration, Re 9.4 and Re 26: top, the in-image angle of the cube projected "
-        "on the x-z plane (camera along y) folded into 0-45 deg, as a camera sees it; bottom, the 3-D angle "
-        "between the pipe axis and the nearest cube axis (0-54.7 deg); fractions per bin with 95 % batch-means "
-        "half-widths."),
+        "Cube orientation at 30 % concentration, one row per cube size (each row its own vertical scale, so a "
+        "case locked in one bin does not flatten the others): left pair, the in-image angle of the cube "
+        "projected on the x-z plane (camera along y) folded into 0-45 deg, as a camera sees it, at Re 9.4 and "
+        "Re 26; right pair, the 3-D angle between the pipe axis and the nearest cube axis (0-54.7 deg); fractions "
+        "per bin with 95 % batch-means half-widths. Black dashes: a uniformly random (isotropic) orientation, "
+        "which gives the projected angle uniformly (1/9 per 5 deg bin) and the 3-D angle its closed-form bin "
+        "fractions. The paper's experimental distribution (its Fig. 9b, Zitoun et al. 2001) is not available to us "
+        "and is not drawn; a flagged case has hatched bars and its flag in the panel title."),
     "fig10_profiles": (
         "Time-averaged axial fluid velocity against radius (mirrored to the full diameter) at Re 26 without "
         "particles and with 16x16 mm cylinders at 30 % concentration, against the Hagen-Poiseuille parabola of the "
-        "same flow rate (dashed)."),
+        "same flow rate (dashed). A flagged case has its flag in the legend."),
 }
 
 
@@ -118,6 +142,80 @@ def _sel(shape, size_label, concentration, reynolds, collisions=True) -> dict:
             "collisions": collisions}
 
 
+#: Hatch of the bars of a flagged case.
+FLAG_HATCH = "////"
+
+
+def _flag_list(value) -> list[str]:
+    """Flags from a cell or a JSON field: ``"frozen; locked"``, a list, or ``{name: bool}``."""
+    if value is None or (isinstance(value, float) and not np.isfinite(value)):
+        return []
+    if isinstance(value, dict):
+        return [str(k) for k, v in value.items() if v]
+    if isinstance(value, (list, tuple)):
+        return [str(v).strip() for v in value if str(v).strip()]
+    return [f.strip() for f in str(value).replace(",", ";").split(";") if f.strip() and f.strip().lower() != "nan"]
+
+
+def case_flags(row) -> list[str]:
+    """Flags of one case's table row (a Series or dict): the ``flags`` column (``;``-separated) and
+    every true ``flag_<name>`` column as ``<name>``. Generic, so that a flag another stage adds to
+    the tables (frozen, locked, unhealthy, ...) shows up in every figure without a change here."""
+    get = row.get if hasattr(row, "get") else dict(row).get
+    out = _flag_list(get("flags"))
+    keys = row.index if hasattr(row, "index") and not isinstance(row, dict) else list(row)
+    for k in keys:
+        if str(k).startswith("flag_") and str(get(k)).strip().lower() in ("true", "1", "1.0", "yes"):
+            out.append(str(k)[len("flag_"):])
+    return list(dict.fromkeys(out))
+
+
+def read_case_flags(fid_dir: Path) -> dict[str, list[str]]:
+    """Flags per case of a results directory: ``flags``/``flag_<name>`` columns of any
+    ``tables/*.csv`` with a ``case`` column, and ``flags`` in ``cases/<case>/stats.json`` or
+    ``summary.json``. An absent source adds nothing."""
+    fid_dir = Path(fid_dir)
+    out: dict[str, list[str]] = {}
+    for csv in sorted((fid_dir / "tables").glob("*.csv")):
+        t = _table(csv)
+        if "case" not in t.columns or not ({"flags"} | {c for c in t.columns if str(c).startswith("flag_")}) & set(
+                t.columns):
+            continue
+        for _, r in t.iterrows():
+            out.setdefault(str(r["case"]), []).extend(case_flags(r))
+    for js in sorted((fid_dir / "cases").glob("*/*.json")):
+        if js.name not in ("stats.json", "summary.json"):
+            continue
+        try:
+            data = json.loads(js.read_text())
+        except ValueError:
+            continue
+        if isinstance(data, dict) and data.get("flags"):
+            out.setdefault(js.parent.name, []).extend(_flag_list(data["flags"]))
+    return {k: list(dict.fromkeys(v)) for k, v in out.items() if v}
+
+
+def _with_flags(table: pd.DataFrame, flags: dict[str, list[str]]) -> pd.DataFrame:
+    """``table`` with the flags of ``flags`` merged into its ``flags`` column (by case)."""
+    if table.empty or "case" not in table.columns or not flags:
+        return table
+    t = table.copy()
+    t["flags"] = [";".join(dict.fromkeys(case_flags(r) + flags.get(str(r["case"]), []))) for _, r in t.iterrows()]
+    return t
+
+
+def _flags_of(table: pd.DataFrame, crit: dict | None) -> list[str]:
+    """Flags of the case ``crit`` selects in ``table`` (none when it is absent)."""
+    if crit is None:
+        return []
+    rows = _select(table, **crit)
+    return case_flags(rows.iloc[0]) if not rows.empty else []
+
+
+def _flagged(label: str, flags: list[str]) -> str:
+    return f"{label} [flagged: {', '.join(flags)}]" if flags else label
+
+
 def _omega_of(table: pd.DataFrame, crit: dict | None):
     """``(values (3,), errors (3,), mark)`` of one case: mark is None for a completed case with
     finite values, else the text to print at its bars."""
@@ -142,27 +240,38 @@ def _mark(ax, x, text, y=None):
             fontsize=7, color="0.3", style="italic")
 
 
-def _bars(ax, groups: list[str], series: list[tuple[str, np.ndarray, np.ndarray, list]], width=None, hatches=None):
-    """Grouped bars: ``series`` = (label, values (G,), errors (G,), marks (G,) text or None)."""
+def _bars(ax, groups: list[str], series: list[tuple], width=None, hatches=None):
+    """Grouped bars: ``series`` = (label, values (G,), errors (G,), marks (G,) text or None[,
+    flags (G,) list of flag names or None]). A flagged bar is hatched and its flags join the label."""
     n = len(series)
     width = width or 0.8 / max(n, 1)
     x0 = np.arange(len(groups))
-    pending = []
-    for k, (label, vals, errs, marks) in enumerate(series):
+    pending, flag_text = [], []
+    for k, (label, vals, errs, marks, *rest) in enumerate(series):
+        flags = rest[0] if rest else [None] * len(groups)
         xs = x0 + (k - (n - 1) / 2) * width
         yerr = np.where(np.isfinite(errs), errs, 0.0)
         bad = [m for m in marks if m and m != "not in study"]
         lab = label if not bad else f"{label} ({', '.join(sorted(set(bad)))})"
-        ax.bar(xs, np.nan_to_num(vals), width * 0.92, yerr=yerr, capsize=2.5, color=f"C{k}", label=lab,
-               hatch=(hatches[k] if hatches else None), edgecolor="k", linewidth=0.4,
-               error_kw={"elinewidth": 0.8})
+        lab = _flagged(lab, list(dict.fromkeys(f for fl in flags if fl for f in fl)))
+        bars = ax.bar(xs, np.nan_to_num(vals), width * 0.92, yerr=yerr, color=f"C{k}", label=lab,
+                      hatch=(hatches[k] if hatches else None), edgecolor="k", linewidth=0.4,
+                      error_kw={"elinewidth": 0.8})
+        for patch, fl in zip(bars.patches, flags):
+            if fl:
+                patch.set_hatch(FLAG_HATCH)
         pending += [(x, m) for x, m in zip(xs, marks) if m]
+        flag_text += [(x, y, ", ".join(fl)) for x, y, fl in zip(xs, np.nan_to_num(vals) + yerr, flags)
+                      if fl and len(groups) > 1 and len(set(map(tuple, (f or () for f in flags)))) > 1]
     ax.set_xticks(x0, groups)
-    tops = [np.nanmax(np.where(np.isfinite(e), v + e, v)) for _, v, e, _ in series if np.isfinite(v).any()]
+    tops = [np.nanmax(np.where(np.isfinite(e), v + e, v)) for _, v, e, *_ in series if np.isfinite(v).any()]
     top = max(tops) if tops else 0.0
     ax.set_ylim(0.0, 1.3 * top if top > 0 else 1.0)  # head-room for the legend
     for x, m in pending:
         _mark(ax, x, m)
+    for x, y, text in flag_text:  # flags that differ between the bars of one series: named at the bar
+        ax.text(x, y + 0.02 * ax.get_ylim()[1], text, rotation=90, ha="center", va="bottom", fontsize=6.5,
+                color="0.25", style="italic")
 
 
 # ----------------------------------------------------------------------------------------------
@@ -179,7 +288,7 @@ def omega_bars(table, series: list[tuple[str, dict]], stem: Path, title: str = "
     data = []
     for label, crit in series:
         v, e, m = _omega_of(t, crit)
-        data.append((label, v, e, [m] * 3))
+        data.append((label, v, e, [m] * 3, [_flags_of(t, crit) if m is None else None] * 3))
     _bars(ax, list(AXIS_LABELS), data)
     ax.set_xlabel("rotation axis (lab frame; z = pipe axis)")
     ax.set_ylabel(OMEGA_YLABEL)
@@ -195,15 +304,17 @@ def shape_size_bars(table, reynolds: float, stem: Path, title: str = "", concent
     marked so."""
     t = _table(table)
     sizes = [("8 mm", "8 mm", "8x8 mm"), ("16 mm", "16 mm", "16x16 mm"), ("24 mm", "24 mm", None)]
-    cube = [_omega_of(t, _sel("cube", c, concentration, reynolds)) for _, c, _ in sizes]
-    cyl = [_omega_of(t, _sel("cylinder", y, concentration, reynolds) if y else None) for _, _, y in sizes]
+    cube_sel = [_sel("cube", c, concentration, reynolds) for _, c, _ in sizes]
+    cyl_sel = [_sel("cylinder", y, concentration, reynolds) if y else None for _, _, y in sizes]
+    cube = [(*_omega_of(t, c), _flags_of(t, c)) for c in cube_sel]
+    cyl = [(*_omega_of(t, c), _flags_of(t, c)) for c in cyl_sel]
     fig, axs = plt.subplots(1, 3, figsize=(9.0, 3.4))
     tops = []
     for j, ax in enumerate(axs):
         series = []
         for label, res in (("cube (edge)", cube), ("cylinder (D x L = size)", cyl)):
             series.append((label, np.array([r[0][j] for r in res]), np.array([r[1][j] for r in res]),
-                           [r[2] for r in res]))
+                           [r[2] for r in res], [r[3] if r[2] is None else None for r in res]))
         _bars(ax, [s[0] for s in sizes], series)
         tops.append(ax.get_ylim()[1])
         ax.set_title(f"about {AXES[j]}", fontsize=9)
@@ -221,50 +332,79 @@ def shape_size_bars(table, reynolds: float, stem: Path, title: str = "", concent
 # ----------------------------------------------------------------------------------------------
 # orientation histograms (Figs. 8, 9)
 
+def _reference(ax, kind: str, edges: np.ndarray, x: np.ndarray, half: float) -> float:
+    """Draw, as black dashes over each bin at positions ``x``, the fraction a uniformly random
+    orientation puts in the bins ``edges`` of ``kind``; return the largest."""
+    from .statistics import isotropic_bin_fractions
+
+    ref = isotropic_bin_fractions(kind, edges)
+    label = ("isotropic: uniform, 1/{} per bin".format(len(ref)) if np.allclose(ref, ref[0])
+             else "isotropic (random orientation)")
+    ax.hlines(ref, x - half, x + half, colors="k", linestyles=(0, (3, 1.5)), linewidth=1.2, label=label, zorder=3)
+    return float(np.max(ref))
+
+
+def _hist_rows(table: pd.DataFrame, kind: str, crit: dict):
+    """``(rows sorted by bin, status, ok)`` of one case and histogram kind."""
+    rows = _select(table, **crit)
+    rows = rows[rows["kind"] == kind] if not rows.empty else rows
+    if not rows.empty:
+        rows = rows.sort_values("bin_lo_deg")
+    status = rows["status"].iloc[0] if not rows.empty and "status" in rows else None
+    ok = (not rows.empty and (status is None or status == "completed")
+          and np.isfinite(rows["fraction"].astype(float)).any())
+    return rows, status, ok
+
+
+def _nominal_edges(lo: float, hi: float, nb: int = 9) -> np.ndarray:
+    return np.linspace(lo, hi, nb + 1)
+
+
+def _bin_labels(edges) -> list[str]:
+    return [f"{a:.0f}-{b:.0f}" for a, b in zip(edges[:-1], edges[1:])]
+
+
 def _hist_panel(ax, table: pd.DataFrame, kind: str, series: list[tuple[str, dict]], lo: float, hi: float):
-    """Grouped bars of bin fractions with 95 % CI for each case of ``series``; missing or
-    not-completed cases are marked in the panel and in the legend."""
+    """Grouped bars of bin fractions with 95 % CI for each case of ``series``, and the isotropic
+    reference of each bin; missing or not-completed cases are marked in the panel and in the
+    legend, flagged cases hatched with their flags in the legend."""
     marks = []
     data = []
-    groups = None
+    edges = None
     for label, crit in series:
-        rows = _select(table, **crit)
-        rows = rows[rows["kind"] == kind] if not rows.empty else rows
-        if not rows.empty:
-            rows = rows.sort_values("bin_lo_deg")
-            if groups is None:
-                groups = [f"{a:.0f}-{b:.0f}" for a, b in zip(rows.bin_lo_deg, rows.bin_hi_deg)]
-        status = rows["status"].iloc[0] if not rows.empty and "status" in rows else None
-        ok = (not rows.empty and (status is None or status == "completed")
-              and np.isfinite(rows["fraction"].astype(float)).any())
+        rows, status, ok = _hist_rows(table, kind, crit)
+        if not rows.empty and edges is None:
+            edges = np.append(rows.bin_lo_deg.to_numpy(float), rows.bin_hi_deg.to_numpy(float)[-1])
         if ok:
-            data.append((label, rows["fraction"].to_numpy(float), rows["ci95"].to_numpy(float)))
+            data.append((label, rows["fraction"].to_numpy(float), rows["ci95"].to_numpy(float),
+                         case_flags(rows.iloc[0])))
         else:
             why = "not run" if rows.empty else _status_text(status)
-            data.append((label, None, why))
+            data.append((label, None, why, []))
             marks.append(f"{label}: {why}")
-    if groups is None:  # nothing at all: lay out nominal bins so the panel still reads
-        nb = 9
-        e = np.linspace(lo, hi, nb + 1)
-        groups = [f"{a:.0f}-{b:.0f}" for a, b in zip(e[:-1], e[1:])]
+    if edges is None:  # nothing at all: lay out nominal bins so the panel still reads
+        edges = _nominal_edges(lo, hi)
+    groups = _bin_labels(edges)
     g = len(groups)
     series_bars = []
-    for label, frac, ci in data:
+    for label, frac, ci, flags in data:
         if frac is None:
             series_bars.append((label, np.full(g, np.nan), np.full(g, np.nan), [None] * g))
         else:
-            series_bars.append((label, frac[:g], ci[:g], [None] * g))
+            series_bars.append((label, frac[:g], ci[:g], [None] * g, [flags or None] * g))
     _bars(ax, groups, series_bars)
+    ref_top = _reference(ax, kind, edges, np.arange(g), 0.45)
     # legend labels of marked cases carry their status
     handles, labels = ax.get_legend_handles_labels()
-    labels = [lab if d[1] is not None else f"{lab} ({d[2]})" for lab, d in zip(labels, data)]
-    ax.legend(handles, labels, fontsize=6.5, frameon=False)
+    status_of = {d[0]: d[2] for d in data if d[1] is None}
+    labels = [f"{lab} ({status_of[lab]})" if lab in status_of else lab for lab in labels]
+    ax.legend(handles, labels, fontsize=6.5)
     if marks:
         ax.text(0.02, 0.97, "\n".join(marks), transform=ax.transAxes, va="top", ha="left", fontsize=7,
                 color="0.3", style="italic")
     ax.tick_params(axis="x", labelsize=6.5, rotation=45)
     ax.set_ylabel("fraction of particle-samples")
-    return ax.get_ylim()[1]
+    return max(ax.get_ylim()[1], 1.3 * ref_top)
 
 
 def cylinder_orientation(table, stem: Path, title: str = "", concentration: float = 0.30,
@@ -289,30 +429,67 @@ def cylinder_orientation(table, stem: Path, title: str = "", concentration: floa
     return save(fig, stem)
 
 
+def _case_hist(ax, table: pd.DataFrame, kind: str, crit: dict, hi: float, color: str) -> tuple[float, str]:
+    """One case's histogram of ``kind`` as bars with 95 % CI, the isotropic reference over it,
+    and its status written in the panel when it has no data; returns (top of the data, flags)."""
+    rows, status, ok = _hist_rows(table, kind, crit)
+    edges = (np.append(rows.bin_lo_deg.to_numpy(float), rows.bin_hi_deg.to_numpy(float)[-1]) if not rows.empty
+             else _nominal_edges(0.0, hi))
+    x = np.arange(len(edges) - 1)
+    top, flags = 0.0, []
+    if ok:
+        frac, ci = rows["fraction"].to_numpy(float), rows["ci95"].to_numpy(float)
+        flags = case_flags(rows.iloc[0])
+        ax.bar(x, np.nan_to_num(frac), 0.85, yerr=np.where(np.isfinite(ci), ci, 0.0), color=color,
+               edgecolor="k", linewidth=0.4, error_kw={"elinewidth": 0.8}, hatch=FLAG_HATCH if flags else None,
+               label="this case (95 % CI)")
+        top = float(np.nanmax(frac + np.where(np.isfinite(ci), ci, 0.0)))
+    else:
+        ax.text(0.5, 0.6, "not run" if rows.empty else _status_text(status), transform=ax.transAxes,
+                ha="center", va="center", fontsize=9, color="0.3", style="italic")
+    top = max(top, _reference(ax, kind, edges, x, 0.45))
+    ax.set_xticks(x, _bin_labels(edges))
+    ax.tick_params(axis="x", labelsize=6.5, rotation=45)
+    return top, ", ".join(flags)
+
+
 def cube_orientation(table, stem: Path, title: str = "", concentration: float = 0.30,
                      reynolds: tuple[float, float] = (9.4, 26.0)) -> list[Path]:
-    """Fig. 9: cube orientation histograms, one column per Reynolds number; top row the
-    projected (camera) angle folded into 0-45 deg, bottom row the 3-D angle of the nearest cube
-    axis to the pipe axis (0-54.7 deg). ``table``: ``tables/orientation.csv``."""
+    """Fig. 9: cube orientation histograms as small multiples, one row per cube size and one
+    column per (angle, Reynolds number): the projected (camera) angle folded into 0-45 deg and
+    the 3-D angle of the nearest cube axis to the pipe axis (0-54.7 deg), each against the
+    isotropic reference. Each row has its own vertical scale (one case locked in a single bin
+    must not flatten the others). ``table``: ``tables/orientation.csv``."""
     t = _table(table)
     sizes = ["8 mm", "16 mm", "24 mm"]
-    fig, axs = plt.subplots(2, len(reynolds), figsize=(10.0, 7.0))
-    axs = np.atleast_2d(axs)
-    rows = (("cube_projected_angle", 45.0, "projected angle to pipe axis, camera along y (deg, folded 0-45)"),
-            ("cube_axis_angle", CUBE_MAX_AXIS_ANGLE_DEG, "3-D angle of nearest cube axis to pipe axis (deg)"))
-    for i, (kind, hi, xlabel) in enumerate(rows):
+    kinds = (("cube_projected_angle", 45.0, "projected angle, camera along y (deg)"),
+             ("cube_axis_angle", CUBE_MAX_AXIS_ANGLE_DEG, "3-D angle, nearest cube axis (deg)"))
+    cols = [(kind, hi, xlabel, re) for kind, hi, xlabel in kinds for re in reynolds]
+    fig, axs = plt.subplots(len(sizes), len(cols), figsize=(2.7 * len(cols), 2.3 * len(sizes) + 0.6),
+                            squeeze=False)
+    for i, size in enumerate(sizes):
         tops = []
-        for j, re in enumerate(reynolds):
+        for j, (kind, hi, xlabel, re) in enumerate(cols):
             ax = axs[i, j]
-            tops.append(_hist_panel(ax, t, kind, [(f"cube {s}", _sel("cube", s, concentration, re)) for s in sizes],
-                                    0.0, hi))
-            ax.set_xlabel(xlabel, fontsize=8)
-            ax.set_title(f"Re {re:g}, {concentration:.0%} concentration", fontsize=9)
-        for ax in axs[i]:  # one scale per row
-            ax.set_ylim(0.0, max(tops))
+            top, flags = _case_hist(ax, t, kind, _sel("cube", size, concentration, re), hi, "C0")
+            tops.append(top)
+            ax.set_title(f"cube {size}, Re {re:g}" + (f"\n[flagged: {flags}]" if flags else ""), fontsize=8,
+                         color="C3" if flags else "k")
+            if i == len(sizes) - 1:
+                ax.set_xlabel(xlabel, fontsize=8)
+        for ax in axs[i]:  # one scale per row (cube size)
+            ax.set_ylim(0.0, 1.15 * max(tops))
+        axs[i, 0].set_ylabel("fraction of\nparticle-samples", fontsize=8)
+    handles, labels = [], []
+    for ax in axs.flat:  # one legend: the case's bars and the isotropic references
+        for h, lab in zip(*ax.get_legend_handles_labels()):
+            if lab not in labels:
+                handles.append(h)
+                labels.append(lab)
+    fig.legend(handles, labels, loc="lower center", ncol=len(labels), fontsize=7.5, bbox_to_anchor=(0.5, 0.0))
     if title:
-        fig.suptitle(title, fontsize=9)
-    fig.tight_layout()
+        fig.suptitle(f"{title}; {concentration:.0%} concentration", fontsize=9)
+    fig.tight_layout(rect=(0, 0.04, 1, 1))
     return save(fig, stem)
 
 
@@ -528,12 +705,14 @@ def make_figures(fid_dir: Path, fidelity: str, cases: dict | None = None) -> lis
     ``fig7a_shape_re9.4``, ``fig7b_shape_re26``, ``fig8_cylinder_orientation``,
     ``fig9_cube_orientation``, ``fig10_profiles`` (each ``.pdf`` and ``.png``). Returns the paths.
 
-    ``cases`` (the config's case dict, optional) locates Fig. 10's particle-free Re 26 case by its
+    Flags of the cases (:func:`read_case_flags`) are merged into the tables first, so every figure
+    marks a flagged case. ``cases`` (the config's case dict, optional) locates Fig. 10's particle-free Re 26 case by its
     metadata; without it the contract's name ``flow_re26`` is used."""
     fid_dir = Path(fid_dir)
     tables, figs = fid_dir / "tables", fid_dir / "figures"
-    av = _table(tables / "angular_velocity.csv")
-    orient = _table(tables / "orientation.csv")
+    flags = read_case_flags(fid_dir)  # flagged cases are marked in every figure that shows them
+    av = _with_flags(_table(tables / "angular_velocity.csv"), flags)
+    orient = _with_flags(_table(tables / "orientation.csv"), flags)
     lvl = f"fidelity: {fidelity}"
     out = []
     out += omega_bars(av, [("cylinder 16x16 mm", _sel("cylinder", "16x16 mm", 0.30, 26.0)),
@@ -561,8 +740,10 @@ def make_figures(fid_dir: Path, fidelity: str, cases: dict | None = None) -> lis
         if not cfg.get("particles") and np.isclose(float(cfg.get("reynolds", np.nan)), 26.0):
             flow_case = name
             break
-    profiles = {"no particles, Re 26": fid_dir / "cases" / flow_case / "profile.csv",
-                "cylinders 16x16 mm, 30 %, Re 26": (fid_dir / "cases" / cyl_case / "profile.csv") if cyl_case else None}
+    profiles = {_flagged("no particles, Re 26", flags.get(flow_case, [])):
+                    fid_dir / "cases" / flow_case / "profile.csv",
+                _flagged("cylinders 16x16 mm, 30 %, Re 26", flags.get(cyl_case, [])):
+                    (fid_dir / "cases" / cyl_case / "profile.csv") if cyl_case else None}
     out += velocity_profiles(profiles, figs / "fig10_profiles", title=f"Fig. 10: axial velocity profiles ({lvl})",
                              parabola="first")
     return out

@@ -11,16 +11,13 @@ definition and that its docstring still cites the equation.
 Document. :func:`build_document` renders ``paper/reproduction.md.j2`` (Jinja2) from a results
 directory ``results/<fid>/``. The template receives data only: every number in the text is read
 from the results (or derived from ``config.yaml`` through :func:`lbmpipe.units.derive`); a section
-whose input is absent says ``not built at this level: <file> missing``. An HTML rendering of the
-Markdown is written beside it by a small converter for the subset the template emits (headings,
-paragraphs, pipe tables, lists, images, links, code spans), because no Markdown library is a
-dependency.
+whose input is absent says ``not built at this level: <file> missing``. The web page beside it
+(``.html``: maths as MathML, contents, anchors per claim and figure) is :mod:`lbmpipe.webpage`'s.
 """
 
 from __future__ import annotations
 
 import ast
-import html
 import json
 import math
 import os
@@ -30,31 +27,48 @@ from typing import NamedTuple
 
 N_EQUATIONS = 21
 
-#: The paper's equations as the project reads them (paper/reading.md, section 1), Markdown with inline code.
+#: The paper's equations as the project reads them (paper/reading.md, section 1), Markdown with LaTeX maths
+#: (``$...$``; the web page renders it as MathML, :mod:`lbmpipe.webpage`).
 EQUATIONS: dict[int, str] = {
-    1: "`∂f_i/∂t + e_i · ∇f_i = Ω_i` (lattice Boltzmann equation)",
-    2: "`Ω_i = -(f_i - f_i^eq) / τ` (BGK collision)",
-    3: "`f_i^eq = ρ w_i [1 + 3 (e_i·u)/c² + 9 (e_i·u)²/(2c⁴) - 3 u²/(2c²)]`, `c = dx/dt`",
-    4: "`ρ = Σ_i f_i`, `ρ u = Σ_i f_i e_i`",
-    5: "weakly compressible Navier-Stokes: `∂ρ/∂t + ∇·(ρu) = 0`, with `P = ρ c_s²`, `c_s² = c²/3`",
-    6: "`∂(ρu)/∂t + ∇·(ρuu) = -∇P + ∇·[ρν(∇u + (∇u)ᵀ)]`, `ν = c² dt (τ - 1/2)/3`",
-    7: "`w_0 = 2/9`, `w_1..6 = 1/9`, `w_7..14 = 1/72` (D3Q15, velocities of Table 1)",
-    8: "`f_i'(x, t+1) = f_i(x, t+) - 2 B_i (e_i · u_b)`, `B_i = 3ρw_i/c²`, "
-       "`u_b = U + Ω × (x + e_i/2 - X)` (Ladd's moving bounce-back)",
-    9: "`F(x + e_i/2, t + 1/2) = 2 e_i [f_i(x, t+) - B_i (e_i · u_b)]` (force on a boundary link)",
-    10: "`T(x + e_i/2, t + 1/2) = (x + e_i/2 - X) × F(x + e_i/2, t + 1/2)` (torque of a link)",
-    11: "`F_p = Σ_links F(x + e_i/2, t + 1/2)` (total force on a particle)",
-    12: "`T_p = Σ_links T(x + e_i/2, t + 1/2)` (total torque on a particle)",
-    13: "`dΩ_x/dt = T_x/I_xx + (I_yy - I_zz) Ω_y Ω_z / I_xx`, and cyclic (Euler's equations, body frame)",
-    14: "orientation as a unit quaternion `q = (q_0, q_1, q_2, q_3)` (Evans 1977), no Euler-angle singularity",
-    15: "quaternion kinematics `dq/dt = ½ q ⊗ (0, Ω_body)`",
-    16: "`m_1 v_1' = m_1 v_1 - I p`, `m_2 v_2' = m_2 v_2 + I p` (collision impulse `I`, normal `p` from 1 to 2)",
-    17: "`k = -(v_1p' - v_2p') / (v_1p - v_2p)` (restitution; normal contact-point velocities)",
-    18: "`J_1 ω_1s' = J_1 ω_1s - l_1s × (I p_s)`, `J_2 ω_2s' = J_2 ω_2s + l_2s × (I p_s)`",
-    19: "`I = m_1 (1+k)(v_1p - v_2p) / {1 + m_1/m_2 + m_1 ([A_1 J_1⁻¹ (l_1s × p_1s)] × l_1)·p "
-        "+ m_1 ([A_2 J_2⁻¹ (l_2s × p_2s)] × l_2)·p}`",
-    20: "`A` = rotation matrix (body → lab) of the particle's quaternion",
-    21: "`I = m_1 (1+k)(-v_1p) / {1 + m_1 ([A_1 J_1⁻¹ (l_1s × p_1s)] × l_1)·p}` (wall: `m_2 → ∞`, `v_2p = 0`)",
+    1: r"$\partial_t f_i + \mathbf{e}_i \cdot \nabla f_i = \Omega_i$ (lattice Boltzmann equation)",
+    2: r"$\Omega_i = -\left(f_i - f_i^{eq}\right) / \tau$ (BGK collision)",
+    3: r"$f_i^{eq} = \rho w_i \left[1 + \frac{3\,\mathbf{e}_i \cdot \mathbf{u}}{c^2} + \frac{9\,(\mathbf{e}_i \cdot "
+       r"\mathbf{u})^2}{2c^4} - \frac{3\,u^2}{2c^2}\right]$, $c = \Delta x / \Delta t$",
+    4: r"$\rho = \sum_i f_i$, $\rho\,\mathbf{u} = \sum_i f_i\,\mathbf{e}_i$",
+    5: r"weakly compressible Navier-Stokes: $\partial_t \rho + \nabla \cdot (\rho\,\mathbf{u}) = 0$, with "
+       r"$P = \rho\,c_s^2$, $c_s^2 = c^2/3$",
+    6: r"$\partial_t(\rho\,\mathbf{u}) + \nabla \cdot (\rho\,\mathbf{u}\mathbf{u}) = -\nabla P + \nabla \cdot "
+       r"\left[\rho\nu\left(\nabla\mathbf{u} + (\nabla\mathbf{u})^T\right)\right]$, "
+       r"$\nu = c^2\,\Delta t\,(\tau - \tfrac{1}{2})/3$",
+    7: r"$w_0 = 2/9$, $w_{1..6} = 1/9$, $w_{7..14} = 1/72$ (D3Q15, velocities of Table 1)",
+    8: r"$f_{i'}(\mathbf{x}, t+1) = f_i(\mathbf{x}, t_+) - 2 B_i\,(\mathbf{e}_i \cdot \mathbf{u}_b)$, "
+       r"$B_i = 3\rho w_i / c^2$, $\mathbf{u}_b = \mathbf{U} + \boldsymbol{\Omega} \times "
+       r"(\mathbf{x} + \tfrac{1}{2}\mathbf{e}_i - \mathbf{X})$ (Ladd's moving bounce-back)",
+    9: r"$\mathbf{F}(\mathbf{x} + \tfrac{1}{2}\mathbf{e}_i, t + \tfrac{1}{2}) = 2\,\mathbf{e}_i\left[f_i(\mathbf{x}, "
+       r"t_+) - B_i\,(\mathbf{e}_i \cdot \mathbf{u}_b)\right]$ (force on a boundary link)",
+    10: r"$\mathbf{T}(\mathbf{x} + \tfrac{1}{2}\mathbf{e}_i, t + \tfrac{1}{2}) = "
+        r"(\mathbf{x} + \tfrac{1}{2}\mathbf{e}_i - \mathbf{X}) \times "
+        r"\mathbf{F}(\mathbf{x} + \tfrac{1}{2}\mathbf{e}_i, t + \tfrac{1}{2})$ (torque of a link)",
+    11: r"$\mathbf{F}_p = \sum_{\mathrm{links}} \mathbf{F}(\mathbf{x} + \tfrac{1}{2}\mathbf{e}_i, t + \tfrac{1}{2})$ "
+        r"(total force on a particle)",
+    12: r"$\mathbf{T}_p = \sum_{\mathrm{links}} \mathbf{T}(\mathbf{x} + \tfrac{1}{2}\mathbf{e}_i, t + \tfrac{1}{2})$ "
+        r"(total torque on a particle)",
+    13: r"$\frac{d\Omega_x}{dt} = \frac{T_x}{I_{xx}} + \frac{(I_{yy} - I_{zz})\,\Omega_y \Omega_z}{I_{xx}}$, and "
+        r"cyclic (Euler's equations, body frame)",
+    14: r"orientation as a unit quaternion $q = (q_0, q_1, q_2, q_3)$ (Evans 1977), no Euler-angle singularity",
+    15: r"quaternion kinematics $\frac{dq}{dt} = \frac{1}{2}\, q \otimes (0, \boldsymbol{\Omega}_{\mathrm{body}})$",
+    16: r"$m_1 \mathbf{v}_1' = m_1 \mathbf{v}_1 - I\,\mathbf{p}$, "
+        r"$m_2 \mathbf{v}_2' = m_2 \mathbf{v}_2 + I\,\mathbf{p}$ "
+        r"(collision impulse $I$, normal $\mathbf{p}$ from 1 to 2)",
+    17: r"$k = -\frac{v_{1p}' - v_{2p}'}{v_{1p} - v_{2p}}$ (restitution; normal contact-point velocities)",
+    18: r"$J_1 \boldsymbol{\omega}_{1s}' = J_1 \boldsymbol{\omega}_{1s} - \mathbf{l}_{1s} \times (I\,\mathbf{p}_s)$, "
+        r"$J_2 \boldsymbol{\omega}_{2s}' = J_2 \boldsymbol{\omega}_{2s} + \mathbf{l}_{2s} \times (I\,\mathbf{p}_s)$",
+    19: r"$I = \frac{m_1 (1+k)(v_{1p} - v_{2p})}{1 + \frac{m_1}{m_2} + m_1 \left([A_1 J_1^{-1} (\mathbf{l}_{1s} "
+        r"\times \mathbf{p}_{1s})] \times \mathbf{l}_1\right) \cdot \mathbf{p} + m_1 \left([A_2 J_2^{-1} "
+        r"(\mathbf{l}_{2s} \times \mathbf{p}_{2s})] \times \mathbf{l}_2\right) \cdot \mathbf{p}}$",
+    20: r"$A$ = rotation matrix (body → lab) of the particle's quaternion",
+    21: r"$I = \frac{m_1 (1+k)(-v_{1p})}{1 + m_1 \left([A_1 J_1^{-1} (\mathbf{l}_{1s} \times \mathbf{p}_{1s})] "
+        r"\times \mathbf{l}_1\right) \cdot \mathbf{p}}$ (wall: $m_2 \to \infty$, $v_{2p} = 0$)",
 }
 
 #: Section of the paper each equation belongs to (for grouping in the document).
@@ -106,7 +120,7 @@ PAPER_HOURS_PER_CASE = 24.0
 #: filled from the config so that no number is typed here.
 DECISIONS: list[tuple[str, str]] = [
     ("Viscosity", "The two flow rates imply different viscosities; ν is taken from the Reynolds number "
-                  "(`Re = U D / ν`, `U = Q / A`), not from a fluid property (paper/reading.md, D2)."),
+                  r"($\mathrm{Re} = U D / \nu$, $U = Q / A$), not from a fluid property (paper/reading.md, D2)."),
     ("Driving", "Periodic inlet and outlet: the flow is driven by a body force (pressure gradient) that a "
                 "controller adjusts to hold the mixture flow rate Q (`lbmpipe.effects`)."),
     ("Time step at Re 26", "The paper's dt gives a centre-line Mach number near the limit of the scheme "
@@ -123,7 +137,8 @@ DECISIONS: list[tuple[str, str]] = [
     ("Fig. 7 cases", "The text does not say which cases Figs. 7a/7b show; we take 30 %, (a) Re 9.4, "
                      "(b) Re 26, cubes 8/16/24 mm and cylinders 8x8/16x16 mm."),
     ("Quaternion convention", "Any consistent convention is allowed (Eqs. (14)-(15)); ours is "
-                              "`dq/dt = ½ q ⊗ (0, Ω_body)`, body → lab, pinned by the tests."),
+                              r"$\frac{dq}{dt} = \frac{1}{2}\, q \otimes (0, \boldsymbol{\Omega}_{\mathrm{body}})$, "
+                              "body → lab, pinned by the tests."),
     ("Restitution", "Collisions are \"instantaneous and elastic\": k = 1, kept a parameter (Eq. (17))."),
     ("Unreachable concentrations", "A packing that cannot reach its target is reported as not packable "
                                    "with the concentration it reached; a different concentration is never "
@@ -494,7 +509,7 @@ def build_context(repo_root: Path, fid_dir: Path, fidelity: str, config: dict, o
     decisions = []
     factors = sorted({fmt(f.get("re26_dt_factor", 1.0)) for f in fids.values()}) or ["1"]
     for title, text in DECISIONS:
-        decisions.append({"title": title, "text": text.format(re26_dt_factors=" / ".join(factors))})
+        decisions.append({"title": title, "text": text.replace("{re26_dt_factors}", " / ".join(factors))})
 
     claims = _read_csv(fid_dir / "claims.csv")
     claims_ctx = None
@@ -548,6 +563,8 @@ def build_document(repo_root: Path, fid_dir: Path, fidelity: str, config: dict, 
     text = env.get_template("reproduction.md.j2").render(**build_context(repo_root, fid_dir, fidelity, config, out_md))
     text = re.sub(r"\n{3,}", "\n\n", text)
     out_md.write_text(text, encoding="utf-8")
+    from .webpage import markdown_to_html
+
     out_md.with_suffix(".html").write_text(markdown_to_html(text, title=f"lbmpipe reproduction ({fidelity})"),
                                            encoding="utf-8")
     return out_md
@@ -562,111 +579,3 @@ def build_checked_document(repo_root: Path, fidelity: str, config: dict,
     out_md = Path(out_md) if out_md is not None else repo_root / "paper" / f"reproduction_{fidelity}.md"
     out = build_document(repo_root, repo_root / "results" / fidelity, fidelity, config, out_md)
     return out, check_links(out, repo_root)
-
-
-# --------------------------------------------------------------------------------------------------
-# minimal Markdown -> HTML (the subset the template emits)
-
-
-def _href(target: str) -> str:
-    """A link to a generated document (``reproduction_<level>.md``) goes to the HTML written beside
-    it; other Markdown files (``paper/reading.md``) have no HTML and keep their link."""
-    return target[:-3] + ".html" if re.search(r"(^|/)reproduction_[^/]*[.]md$", target) else target
-
-
-def _inline(s: str) -> str:
-    parts = re.split(r"(`[^`]*`)", s)
-    out = []
-    for p in parts:
-        if p.startswith("`") and p.endswith("`") and len(p) >= 2:
-            out.append(f"<code>{html.escape(p[1:-1])}</code>")
-            continue
-        p = html.escape(p, quote=False)
-        p = re.sub(r'!\[([^\]]*)\]\(([^)\s]+)\)', r'<img src="\2" alt="\1" style="max-width:100%">', p)
-        p = re.sub(r'\[([^\]]*)\]\(([^)\s]+)(?:\s+"([^"]*)")?\)',
-                   lambda m: f'<a href="{_href(m.group(2))}"'
-                             + (f' title="{m.group(3)}"' if m.group(3) else "") + f">{m.group(1)}</a>", p)
-        p = re.sub(r"\*\*([^*]+)\*\*", r"<strong>\1</strong>", p)
-        p = re.sub(r"(?<![\w*])\*([^*\s][^*]*)\*(?![\w*])", r"<em>\1</em>", p)
-        out.append(p)
-    return "".join(out)
-
-
-def _split_row(line: str) -> list[str]:
-    cells = re.split(r"(?<!\\)\|", line.strip().strip("|"))
-    return [c.strip().replace("\\|", "|") for c in cells]
-
-
-def markdown_to_html(text: str, title: str = "") -> str:
-    """HTML of the Markdown subset used by the template: ATX headings, paragraphs, ``-`` lists,
-    pipe tables, block quotes, fenced code, images, links (with titles), ``code``, **bold**."""
-    lines = text.splitlines()
-    body: list[str] = []
-    i = 0
-    para: list[str] = []
-
-    def flush():
-        if para:
-            body.append(f"<p>{_inline(' '.join(para))}</p>")
-            para.clear()
-
-    while i < len(lines):
-        line = lines[i]
-        if line.startswith("```"):
-            flush()
-            j = i + 1
-            while j < len(lines) and not lines[j].startswith("```"):
-                j += 1
-            body.append("<pre><code>" + html.escape("\n".join(lines[i + 1:j])) + "</code></pre>")
-            i = j + 1
-            continue
-        m = re.match(r"^(#{1,6})\s+(.*)$", line)
-        if m:
-            flush()
-            level = len(m.group(1))
-            anchor = re.sub(r"[^a-z0-9]+", "-", m.group(2).lower()).strip("-")
-            body.append(f'<h{level} id="{anchor}">{_inline(m.group(2))}</h{level}>')
-            i += 1
-            continue
-        if line.startswith("|") and i + 1 < len(lines) and re.match(r"^\|?\s*:?-{3,}", lines[i + 1]):
-            flush()
-            head = _split_row(line)
-            rows = []
-            i += 2
-            while i < len(lines) and lines[i].startswith("|"):
-                rows.append(_split_row(lines[i]))
-                i += 1
-            body.append("<table><thead><tr>" + "".join(f"<th>{_inline(c)}</th>" for c in head) + "</tr></thead><tbody>"
-                        + "".join("<tr>" + "".join(f"<td>{_inline(c)}</td>" for c in r) + "</tr>" for r in rows)
-                        + "</tbody></table>")
-            continue
-        if re.match(r"^\s*[-*]\s+", line):
-            flush()
-            items = []
-            while i < len(lines) and (re.match(r"^\s*[-*]\s+", lines[i]) or (lines[i].startswith("  ") and items)):
-                if re.match(r"^\s*[-*]\s+", lines[i]):
-                    items.append(re.sub(r"^\s*[-*]\s+", "", lines[i]))
-                else:
-                    items[-1] += " " + lines[i].strip()
-                i += 1
-            body.append("<ul>" + "".join(f"<li>{_inline(it)}</li>" for it in items) + "</ul>")
-            continue
-        if line.startswith(">"):
-            flush()
-            quote = []
-            while i < len(lines) and lines[i].startswith(">"):
-                quote.append(lines[i].lstrip("> "))
-                i += 1
-            body.append(f"<blockquote>{_inline(' '.join(quote))}</blockquote>")
-            continue
-        if not line.strip():
-            flush()
-        else:
-            para.append(line.strip())
-        i += 1
-    flush()
-    style = ("body{font-family:sans-serif;max-width:60em;margin:2em auto;line-height:1.4}"
-             "table{border-collapse:collapse;font-size:90%}td,th{border:1px solid #bbb;padding:2px 6px;vertical-align:top}"
-             "code{background:#f4f4f4}blockquote{color:#444;border-left:3px solid #ccc;margin-left:0;padding-left:1em}")
-    return (f"<!DOCTYPE html>\n<html><head><meta charset=\"utf-8\"><title>{html.escape(title)}</title>"
-            f"<style>{style}</style></head><body>\n" + "\n".join(body) + "\n</body></html>\n")
