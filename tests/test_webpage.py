@@ -1,4 +1,4 @@
-"""The web page of the reproduction (lbmpipe.webpage): maths as MathML built offline, contents,
+"""The web page of the reproduction (lbmpipe.reproduction.webpage): maths as MathML built offline, contents,
 anchors per claim and figure; and the page the real build writes from the committed
 ``results/paper``, opened in headless Chromium (Debian's ``chromium`` + ``chromium-driver``,
 driven by Selenium): the equations are laid out as mathematics, every image loads, every link
@@ -17,7 +17,7 @@ from urllib.parse import unquote, urlparse
 import pytest
 import yaml
 
-from lbmpipe import literate, webpage
+from lbmpipe.reproduction import literate, webpage
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -7,12 +7,12 @@ number, collisions), never by parsing names. A case the figure needs but which i
 the table or did not complete (e.g. status ``unpackable``) is marked with a text at its place
 ("not packable", "not run", ...), never dropped silently.
 
-Every figure is drawn in the style ``lbmpipe/lbmpipe.mplstyle`` (applied on import). A case that
+Every figure is drawn in the style ``lbmpipe/reproduction/lbmpipe.mplstyle`` (applied on import). A case that
 carries a flag (:func:`case_flags`: a ``flags`` column or ``flag_<name>`` columns of the tables, or
 ``flags`` in its ``stats.json``/``summary.json``; e.g. frozen, locked, unhealthy) keeps its bars,
 hatched, with the flag named in the legend or the panel title. The orientation histograms (Figs. 8,
 9) carry the fraction a uniformly random orientation puts in each plotted bin
-(:func:`lbmpipe.statistics.isotropic_bin_fractions`, closed form). The paper's experimental
+(:func:`lbmpipe.reproduction.statistics.isotropic_bin_fractions`, closed form). The paper's experimental
 values (Zitoun et al. 2001) are not available to us and are not drawn.
 """
 

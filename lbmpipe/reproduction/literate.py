@@ -12,7 +12,7 @@ Document. :func:`build_document` renders ``paper/reproduction.md.j2`` (Jinja2) f
 directory ``results/<fid>/``. The template receives data only: every number in the text is read
 from the results (or derived from ``config.yaml`` through :func:`lbmpipe.units.derive`); a section
 whose input is absent says ``not built at this level: <file> missing``. The web page beside it
-(``.html``: maths as MathML, contents, anchors per claim and figure) is :mod:`lbmpipe.webpage`'s.
+(``.html``: maths as MathML, contents, anchors per claim and figure) is :mod:`lbmpipe.reproduction.webpage`'s.
 """
 
 from __future__ import annotations
@@ -28,7 +28,7 @@ from typing import NamedTuple
 N_EQUATIONS = 21
 
 #: The paper's equations as the project reads them (paper/reading.md, section 1), Markdown with LaTeX maths
-#: (``$...$``; the web page renders it as MathML, :mod:`lbmpipe.webpage`).
+#: (``$...$``; the web page renders it as MathML, :mod:`lbmpipe.reproduction.webpage`).
 EQUATIONS: dict[int, str] = {
     1: r"$\partial_t f_i + \mathbf{e}_i \cdot \nabla f_i = \Omega_i$ (lattice Boltzmann equation)",
     2: r"$\Omega_i = -\left(f_i - f_i^{eq}\right) / \tau$ (BGK collision)",
@@ -523,6 +523,8 @@ def build_context(repo_root: Path, fid_dir: Path, fidelity: str, config: dict, o
     return {
         "fidelity": fidelity,
         "fid_dir": _rel_to(fid_dir, repo_root),
+        # the paper's reading, relative to the document wherever it is built
+        "reading_link": os.path.relpath(repo_root.resolve() / "paper" / "reading.md", out_dir.resolve()).replace(os.sep, "/"),
         "level_md": ", ".join(f"`{k}` = {fmt(v)}" for k, v in fid_cfg.items() if not isinstance(v, dict))
                     or "(not in config.yaml)",
         "level_run_md": ", ".join(f"`{k}` = {fmt(v)}" for k, v in (fid_cfg.get("run") or {}).items()) or "–",

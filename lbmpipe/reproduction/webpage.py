@@ -1,6 +1,6 @@
 """The reproduction document as a web page that works offline.
 
-:func:`markdown_to_html` turns the Markdown that ``lbmpipe.literate.build_document`` writes into
+:func:`markdown_to_html` turns the Markdown that ``lbmpipe.reproduction.literate.build_document`` writes into
 one self-contained HTML page:
 
 - Markdown by markdown-it-py (CommonMark with its pipe-table extension); raw HTML in the Markdown
