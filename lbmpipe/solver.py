@@ -21,6 +21,7 @@ interrupt; a resumed run is bit-identical to an uninterrupted one.
 
 from __future__ import annotations
 
+import contextlib
 import math
 import signal
 import time
@@ -280,15 +281,20 @@ class Outcome:
 
 
 def run_loop(sim: Simulation, n_steps: int, every: int, reporters=(), *, stop_at_step: int | None = None,
-             interruptible: bool = True) -> Outcome:
+             interruptible: bool = True, interrupt: "_Interrupt | None" = None) -> Outcome:
     """Step ``sim`` to ``n_steps`` with a sample every ``every`` steps (and at the last step),
     handing each sample to ``reporters`` in order. SIGINT/SIGTERM (when ``interruptible``) and
     ``stop_at_step`` end the run as ``interrupted`` between steps, with the state consistent; an
-    ``Unstable`` raised by the guard, the collision step or a reporter ends it as ``unstable``."""
+    ``Unstable`` raised by the guard, the collision step or a reporter ends it as ``unstable``.
+    ``interrupt``: a caller's handler already installed (a signal during the set-up before the
+    loop then ends the run before its first step)."""
     out = Outcome()
-    with _Interrupt(enabled=interruptible) as stop:
+    with (contextlib.nullcontext(interrupt) if interrupt is not None else _Interrupt(enabled=interruptible)) as stop:
         try:
             while sim.step_count < n_steps:
+                if stop.hit:
+                    out.status, out.message = "interrupted", f"interrupted at step {sim.step_count}"
+                    break
                 chunk = min(every - sim.step_count % every, n_steps - sim.step_count)
                 if stop_at_step is not None and sim.step_count < stop_at_step:
                     chunk = min(chunk, stop_at_step - sim.step_count)
@@ -598,14 +604,24 @@ def run_scene(scene, params, out_dir: Path, progress: bool = True, max_steps: in
     one. ``stop_at_step`` stops the run as an interrupt would once that step is reached (to split
     a run into parts, and for tests).
     """
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    t_build = time.perf_counter()
+    # SIGINT/SIGTERM from here on (the set-up compiles for minutes on a cold cache) end the run as
+    # interrupted, with its summary, instead of killing it with nothing written
+    early = _Interrupt()
+    with early:
+        return _run_scene(scene, params, out_dir, progress, max_steps, checkpoint, checkpoint_every_s,
+                          keep_checkpoint, stop_at_step, early, t_build)
+
+
+def _run_scene(scene, params, out_dir, progress, max_steps, checkpoint, checkpoint_every_s, keep_checkpoint,
+               stop_at_step, early, t_build) -> dict:
     from . import outputs
     from .fields import FieldWriter
     from .profiles import PlaneProfile
 
-    out_dir = Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
     units = params.units
-    t_build = time.perf_counter()
     sim = simulation_from_scene(scene, params)
     grid = sim.grid
     n_steps = params.n_steps if max_steps is None else min(max_steps, params.n_steps)
@@ -633,7 +649,7 @@ def run_scene(scene, params, out_dir: Path, progress: bool = True, max_steps: in
     setup_seconds = run.t0 - t_build
     reporters = [*([fields] if fields else []), FiniteState(), run.flow, *([run.particles] if run.particles else []),
                  profile, *([run.planes] if run.planes else []), bar, *([writer] if writer else [])]
-    outcome = run_loop(sim, n_steps, every, reporters, stop_at_step=stop_at_step)
+    outcome = run_loop(sim, n_steps, every, reporters, stop_at_step=stop_at_step, interrupt=early)
     wall = run.wall()
     bar.bar.close()
     status, message = outcome.status, outcome.message
