@@ -203,7 +203,7 @@ def _terms(ci, cj, cs, cn, cc, x, Rm, im, iinv):
     them (``_impulse_terms``)."""
     g = np.empty((ci.shape[0], _NG))
     for t in range(ci.shape[0]):
-        _impulse_terms(ci[t], cj[t], cs[t, 0], cs[t, 1], cs[t, 2], cc, cn, t, x, Rm, im, iinv, g, t)
+        _impulse_terms(ci[t], cj[t], cs[t, 0], cs[t, 1], cs[t, 2], cc, cc, cn, t, x, Rm, im, iinv, g, t)
     return g
 
 

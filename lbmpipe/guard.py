@@ -15,10 +15,11 @@ checks, on the post-collision populations of the current time:
   the sums covers every population.
 * particles: a non-finite centre, velocity, orientation or angular velocity, a particle faster
   than ``u_max``, a centre outside the domain (pipe: farther than R from the axis; box: beyond a
-  wall), and an overlap beyond ten times the collision model's ``overlap_tol`` (0.1 lattice
-  spacing by default: the bound the collision tests hold between calls; in a jammed 50 % packing
-  the projection can run out of iterations at a few hundredths of a spacing, harmless for the
-  fluid, which cannot resolve it). The guard reads the running maximum the ``CollisionEffect``
+  wall), and an overlap beyond the collision model's ``overlap_bound``
+  (``lbmpipe.particles.collisions.OVERLAP_BOUND_FACTOR`` times ``overlap_tol``, 0.1 lattice spacing by
+  default: the bound on overlaps at any time, whose sources the collisions module lists; in a
+  jammed 50 % packing the projection can run out of iterations at a few hundredths of a spacing,
+  harmless for the fluid, which cannot resolve it). The guard reads the running maximum the ``CollisionEffect``
   keeps, so an excess at any step is seen.
 
 A failed check raises :class:`Unstable`, whose message names what failed, where (node index and
@@ -41,6 +42,7 @@ import numpy as np
 from numba import njit, prange
 
 from .errors import Unstable  # noqa: F401  (raised here; guard.Unstable is the name callers used)
+from .particles.collisions import OVERLAP_BOUND_FACTOR
 
 #: steps between checks when the scene does not say (cost < 1 % of the step: benchmarks/guard.py)
 DEFAULT_EVERY = 50
@@ -123,7 +125,7 @@ class GuardLimits:
     u_max: float = 0.5  # fluid and particle speed, 0.87 c_s
     rho_min: float = 0.2
     rho_max: float = 3.0
-    overlap_factor: float = 10.0  # times the collision model's overlap_tol
+    overlap_factor: float = OVERLAP_BOUND_FACTOR  # times the collision model's overlap_tol
 
 
 class Guard:

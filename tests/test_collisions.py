@@ -485,7 +485,7 @@ def test_narrow_phase_gives_exact_touching_contacts_and_lower_bounds_beyond_the_
     # The collision step computes exact geometry only where it is used (gap <= contact_gap);
     # wider pair gaps and wall gaps far from reach may be lower bounds. Everything else in the
     # step relies on exactly this: equal bits at or below contact_gap, never above the true gap.
-    from lbmpipe.particles import collisions as C
+    from lbmpipe.particles.placement import collisions as C
     from lbmpipe.particles.contact import bounding_radii, candidate_pairs
     from lbmpipe.particles.rigid import quat_to_matrices
 
@@ -560,3 +560,162 @@ def test_a_row_of_touching_spheres_passes_the_striker_velocity_to_the_last_in_on
     assert np.all(np.diff(b.v[:, 0]) >= -1e-15)  # nothing approaches any more
 
 
+
+
+def _cube_pair_overlap(b):
+    return max(0.0, -contact_pair(CUBE, b.h[0], b.x[0], b.q[0], CUBE, b.h[1], b.x[1], b.q[1])[0])
+
+
+@pytest.mark.parametrize("gap", [0.05, 0.11])
+def test_a_spinning_cube_already_in_contact_is_tested_ahead_and_ends_its_step_within_overlap_tol(gap):
+    # Two cubes face to face, cube 1 spinning about an axis along the faces: the contact point of
+    # the face contact (the face centre) does not approach, but a corner turns 0.08 rad a step
+    # into the other cube. Within the contact gap (0.05) it must be tested ahead as it is beyond
+    # it (0.11): the step ends touching at most within overlap_tol, with energy conserved (k = 1).
+    b = Bodies.make(CUBE, [1.0] * 3, 1.0, [[0.0, 0.0, 0.0], [2.0 + gap, 0.0, 0.0]], wb=[[0.0, 0.08, 0.0], [0.0] * 3])
+    prm = CollisionParams(contact_gap=0.1)
+    e0 = _energy(b)
+    resolve_collisions(b, FREE, prm, 1.0)
+    drift(b, 1.0)
+    assert _cube_pair_overlap(b) <= prm.overlap_tol
+    assert _energy(b) == pytest.approx(e0, rel=1e-12)
+
+
+def test_spinning_bodies_in_a_dense_box_stay_within_the_overlap_bound_after_every_drift():
+    # spheres, cubes and cylinders on a grid 0.05 apart, spinning at ~0.05 rad a step: most pairs
+    # touch all the time, and their corners turn into each other within a step
+    rng = np.random.default_rng(11)
+    radius, length = 5.0, 12.0
+    b = _dense_mixed_bodies(rng, radius, length)
+    dom = Domain.pipe(radius, length)
+    for gap in (0.1,):
+        c = b.copy()
+        prm = CollisionParams(contact_gap=gap)
+        nlist = NeighbourList()
+        worst = 0.0
+        for _ in range(150):
+            s = resolve_collisions(c, dom, prm, 1.0, nlist=nlist)
+            assert s["max_overlap_after"] <= prm.overlap_tol
+            drift(c, 1.0)
+            worst = max(worst, max(_independent_overlaps(c, radius, length)))
+        assert worst <= prm.overlap_bound
+
+
+def _cube_in_box(half_width, w=0.05):
+    dom = Domain.box((-half_width,) * 3, (half_width,) * 3)
+    return Bodies.make(CUBE, [1.0] * 3, 1.0, [[0.0, 0.0, 0.0]], wb=[[0.0, 0.0, w]]), dom
+
+
+def test_a_spinning_cube_jammed_in_a_fitting_box_loses_its_spin_and_a_free_one_keeps_it():
+    # A unit cube in a box it just fits cannot turn: any turn pushes two corners into each wall.
+    # Holding it (impulses, projection) must take the spin out within a few steps, as a
+    # velocity-level constraint would; a cube whose corners stay beyond the contact gap of the
+    # walls keeps every bit of it.
+    prm = CollisionParams(contact_gap=0.1)
+    for half_width, kept in ((1.0, False), (1.8, True)):
+        b, dom = _cube_in_box(half_width)
+        e0 = _energy(b)
+        for step in range(200):
+            s = resolve_collisions(b, dom, prm, 1.0, pairs=False)
+            assert s["max_overlap_after"] <= prm.overlap_tol
+            drift(b, 1.0)
+            if step == 4 and not kept:
+                assert _energy(b) <= 1e-2 * e0  # most of it in the first few steps
+        if kept:
+            assert _energy(b) == e0
+        else:
+            assert _energy(b) <= 1e-5 * e0
+            assert abs(quat_to_matrix(b.q[0])[0, 0]) > 1.0 - 1e-4  # still square to the walls
+
+
+def _squeezed_row(rng, n=5, squeeze=0.02):
+    """n unit cubes in a channel (0.05 of clearance across) 0.02 shorter than the row: jammed end to
+    end, with random velocities and spins."""
+    half = n - squeeze / 2
+    dom = Domain.box((-half, -1.05, -1.05), (half, 1.05, 1.05))
+    x = [[-half + 1.0 + i * (2.0 - squeeze / (n - 1)), 0.0, 0.0] for i in range(n)]
+    b = Bodies.make(CUBE, [1.0] * 3, 1.0, x, v=0.05 * rng.standard_normal((n, 3)), wb=0.05 * rng.standard_normal((n, 3)))
+    return b, dom
+
+
+def test_an_inelastic_row_of_cubes_squeezed_in_a_channel_comes_to_rest():
+    # k = 0: every contact stops its approach; held end to end, the row must lose all its energy
+    # and make none on the way
+    b, dom = _squeezed_row(np.random.default_rng(3))
+    prm = CollisionParams(restitution=0.0, contact_gap=0.1)
+    e0 = _energy(b)
+    energies = []
+    for _ in range(50):
+        s = resolve_collisions(b, dom, prm, 1.0)
+        assert s["max_overlap_after"] <= prm.overlap_tol
+        energies.append(_energy(b))
+        drift(b, 1.0)
+    assert energies[-1] <= 1e-3 * e0
+    assert max(energies) <= e0 * (1.0 + 1e-12)
+
+
+def test_an_elastic_jammed_row_settles_or_reports_unresolved_contacts_within_the_sweep_cap():
+    # k = 1 in the squeezed row: the blows run back and forth along the closed row without end.
+    # The second half of the sweeps is inelastic: each call stays within the sweep cap for all its
+    # rounds together (max_sweeps, plus the last round's own sweeps), reports what it left
+    # approaching, makes no energy, and leaves no overlap beyond overlap_tol
+    for seed in range(3):
+        b, dom = _squeezed_row(np.random.default_rng(seed))
+        prm = CollisionParams(restitution=1.0, contact_gap=0.1)
+        e0 = _energy(b)
+        for step in range(50):
+            s = resolve_collisions(b, dom, prm, 1.0)
+            assert s["sweeps"] < 2 * prm.max_sweeps
+            assert s["max_overlap_after"] <= prm.overlap_tol
+            assert _energy(b) <= e0 * (1.0 + 1e-12)
+            drift(b, 1.0)
+
+
+def _stack_energy(b, g):
+    return _energy(b) + float(np.sum(b.mass * g * b.x[:, 2]))
+
+
+def test_a_stack_of_cubes_under_gravity_never_gains_energy_and_comes_to_rest():
+    # 4 unit cubes in a shaft 0.1 wider than they are, stacked 0.05 apart on its floor, gravity
+    # g = 1e-3 a step, k = 0.5: the kinetic plus potential energy never grows (beyond round-off)
+    # and the stack settles: no body moves by more than round-off over the last 200 steps
+    n, g = 4, 1e-3
+    dom = Domain.box((-1.05, -1.05, 0.0), (1.05, 1.05, 100.0))
+    b = Bodies.make(CUBE, [1.0] * 3, 1.0, [[0.0, 0.0, 1.0 + 2.05 * i] for i in range(n)])
+    prm = CollisionParams(restitution=0.5, contact_gap=0.1)
+    nlist = NeighbourList()
+    mga = b.mass[0] * g * 1.0
+    e_prev = np.inf  # the first call has no previous one to tell gravity's kick from an impact
+    for step in range(1500):
+        b.v[:, 2] -= g
+        resolve_collisions(b, dom, prm, 1.0, nlist=nlist)
+        drift(b, 1.0)
+        e = _stack_energy(b, g)
+        assert e <= e_prev + 1e-9 * mga
+        e_prev = e
+        if step == 1299:
+            z_settled = b.x[:, 2].copy()
+    assert np.abs(b.x[:, 2] - z_settled).max() <= 1e-6  # was 0.005 lu of hovering
+    assert _energy(b) <= 1e-9 * mga
+
+
+def test_frictionless_spheres_never_gain_spin_from_any_collision():
+    # glancing impacts of spheres up to 0.6 apart at speeds ~0.4 a step (speculative contacts,
+    # found at the time of impact), and against the walls of a box: a frictionless impulse passes
+    # through the centres, so no sphere may ever spin; k = 1 keeps the energy
+    rng = np.random.default_rng(1)
+    box = Domain.box((-3.5, -3.5, -3.5), (3.5, 3.5, 3.5))
+    hits = 0
+    for _ in range(100):
+        d = rng.standard_normal(3)
+        d /= np.linalg.norm(d)
+        gap = rng.uniform(0.15, 0.6)
+        b = Bodies.make(SPHERE, [1.0] * 3, 1.0, [-0.5 * (2.0 + gap) * d, 0.5 * (2.0 + gap) * d],
+                        v=0.4 * rng.standard_normal((2, 3)))
+        e0 = _energy(b)
+        for _ in range(4):
+            hits += resolve_collisions(b, box, CollisionParams(), 1.0)["impulses"]
+            drift(b, 1.0)
+        assert np.abs(b.wb).max() <= 1e-12  # round-off of the lever arm's direction only
+        assert _energy(b) == pytest.approx(e0, rel=1e-12)
+    assert hits > 100
