@@ -20,7 +20,7 @@ the issue's model must do each step, each in the cheapest form we could give it:
   since its last evaluation is skipped. There are no speculative contacts and no re-tests after
   the impulses.
 
-* ``exact detection``: the same pairs by lbmpipe's exact cylinder path (``contact._cylinder_gap``:
+* ``exact detection``: the same pairs by lbmpipe's exact cylinder path (``contact.cylinders._cylinder_gap``:
   closed forms for side-side and cap-rim, a one-dimensional Newton search for rim-side and
   rim-rim, each certified by the separating-axis bound), full accuracy, the gap, the normal and
   both witness points. As in the step, each pair first tries the candidate that won for it
@@ -83,10 +83,10 @@ from lbmpipe.particles.collisions import (  # noqa: E402
     lab_omegas,
     resolve_collisions,
 )  # noqa: E402
+from lbmpipe.particles.contact.cylinders import _cylinder_gap  # noqa: E402
+from lbmpipe.particles.contact.gjk import _gjk_from  # noqa: E402
+from lbmpipe.particles.contact.scratch import _gjk_scratch  # noqa: E402
 from lbmpipe.particles.contact import (  # noqa: E402
-    _cylinder_gap,
-    _gjk_from,
-    _gjk_scratch,
     bounding_radii,
     candidate_pairs,
     listed_pairs,

@@ -37,9 +37,10 @@ def _numba_cache_by_source() -> None:
     ``NUMBA_CACHE_DIR`` is set.
 
     Why: numba invalidates a cached function when *its own* source file changes, not when a
-    function it inlines from another module does. ``collisions.py`` compiles ``contact.py``'s GJK
-    into its own functions, so after an edit of ``contact.py`` the cached collision step would
-    keep running the old GJK, silently (it happened while timing a change to ``contact.py``).
+    function it inlines from another module does. ``collisions.py`` compiles the contact
+    package's GJK (``particles/contact/``) into its own functions, and the contact modules inline
+    each other's helpers, so after an edit of the GJK the cached collision step would keep
+    running the old one, silently (it happened while timing a change to the contact code).
     With the folder keyed by every source file, any edit starts a fresh cache. Each import marks
     its folder as used; folders of other source versions unused for ``_CACHE_KEEP_DAYS`` are
     removed (each holds 10-40 MB, and every edit of the package makes one).

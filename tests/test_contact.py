@@ -165,7 +165,8 @@ def test_overlap_test_without_epa_agrees_with_the_sign_of_the_gap_for_random_pai
 def _gjk_gap(h1, x1, R1, h2, x2, R2):
     """Gap and unit normal of two separated cylinders by GJK alone (the reference for the exact
     path, which body_contact now takes for cylinder pairs)."""
-    from lbmpipe.particles.contact import _gjk, _gjk_scratch
+    from lbmpipe.particles.contact.gjk import _gjk
+    from lbmpipe.particles.contact.scratch import _gjk_scratch
 
     W, WA, WB, lam, pa, pb, v = _gjk_scratch(new_scratch())
     scale = math.hypot(h1[0], h1[2]) + math.hypot(h2[0], h2[2])
@@ -220,8 +221,9 @@ def test_exact_cylinder_gap_is_certified_by_one_feature_pair_only_so_the_try_ord
     # _cylinder_gap tries the rim-side searches in an order set by the axes' lean towards the
     # centre line, after the candidate that won the step before if it is given one; the result
     # is the fixed order's as long as no two candidates are certified
-    from lbmpipe.particles.contact import (_EXACT_TOL, _N_CANDIDATES, _certified_gap, _cyl_candidate, _cyl_frames,
-                                 _cylinder_gap, cylinder_gap_exact)
+    from lbmpipe.particles.contact import cylinder_gap_exact
+    from lbmpipe.particles.contact.cylinders import (_EXACT_TOL, _N_CANDIDATES, _certified_gap, _cyl_candidate,
+                                                     _cyl_frames, _cylinder_gap)
 
     rng = np.random.default_rng(11)
     nrm, pa, pb = np.empty(3), np.empty(3), np.empty(3)
@@ -296,7 +298,9 @@ def test_exact_cylinder_gap_of_crossed_sides_a_cap_under_a_tilted_rim_and_two_ri
 def test_exact_cylinder_overlap_test_never_contradicts_gjk_and_settles_almost_every_pair():
     # the time-of-impact bisection asks "do they overlap?" of cylinder pairs near touching; the
     # exact test answers from a point inside the other body or a separating direction, else -1
-    from lbmpipe.particles.contact import _gjk, _gjk_scratch, cylinders_overlap_exact
+    from lbmpipe.particles.contact import cylinders_overlap_exact
+    from lbmpipe.particles.contact.gjk import _gjk
+    from lbmpipe.particles.contact.scratch import _gjk_scratch
 
     rng = np.random.default_rng(3)
     W, WA, WB, lam, pa, pb, v = _gjk_scratch(new_scratch())
@@ -499,7 +503,7 @@ def test_side_against_side_contact_point_is_bit_identical_to_the_general_patch_c
     # body_contact_ws finds the contact point of two cylinder sides on scalars (_side_side_patch)
     # instead of through _manifold_point's scratch views; the two must agree bit for bit, for
     # parallel, nearly parallel and crossed sides, overlapping, touching end to end or apart
-    from lbmpipe.particles.contact import _F_SIDE, _cyl_feature_kind, _manifold_point, _side_side_patch
+    from lbmpipe.particles.contact.features import _F_SIDE, _cyl_feature_kind, _manifold_point, _side_side_patch
 
     def frame(e, rng):
         u = np.cross(e, rng.standard_normal(3))
@@ -545,7 +549,8 @@ def test_rim_sample_table_is_bit_identical_to_the_trigonometry_it_replaces():
     # committed result) would change in the last bits
     from numba import njit
 
-    from lbmpipe.particles.contact import _RIM_COS, _RIM_SIN, RIM_SAMPLES
+    from lbmpipe.particles.contact import RIM_SAMPLES
+    from lbmpipe.particles.contact.walls import _RIM_COS, _RIM_SIN
 
     @njit
     def trig(n):

@@ -40,12 +40,13 @@ def test_an_edit_of_any_module_gives_numba_a_fresh_cache_folder(tmp_path):
 
 
 def test_an_edit_of_a_module_in_a_subpackage_gives_numba_a_fresh_cache_folder(tmp_path):
-    # collisions.py compiles contact.py's GJK into its own functions: both live in lbmpipe/particles/
+    # collisions.py compiles the contact package's GJK into its own functions: they live in
+    # lbmpipe/particles/ and lbmpipe/particles/contact/, two folders deep
     copy = tmp_path / "src"
     shutil.copytree(PACKAGE, copy / "lbmpipe", ignore=shutil.ignore_patterns("__pycache__"))
     home = tmp_path / "cache"
     first = _cache_folder(copy, home)
-    contact = copy / "lbmpipe" / "particles" / "contact.py"
+    contact = copy / "lbmpipe" / "particles" / "contact" / "gjk.py"
     contact.write_text(contact.read_text() + "\n# edited\n")
     assert _cache_folder(copy, home) != first
 
