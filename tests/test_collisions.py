@@ -485,7 +485,7 @@ def test_narrow_phase_gives_exact_touching_contacts_and_lower_bounds_beyond_the_
     # The collision step computes exact geometry only where it is used (gap <= contact_gap);
     # wider pair gaps and wall gaps far from reach may be lower bounds. Everything else in the
     # step relies on exactly this: equal bits at or below contact_gap, never above the true gap.
-    from lbmpipe.particles.placement import collisions as C
+    from lbmpipe.particles import collisions as C
     from lbmpipe.particles.contact import bounding_radii, candidate_pairs
     from lbmpipe.particles.rigid import quat_to_matrices
 
