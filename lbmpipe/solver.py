@@ -21,7 +21,6 @@ interrupt; a resumed run is bit-identical to an uninterrupted one.
 
 from __future__ import annotations
 
-import contextlib
 import math
 import signal
 import time
@@ -207,13 +206,14 @@ def simulation_from_scene(scene, params, guard: bool = True) -> Simulation:
 class _Interrupt:
     """Turns SIGINT/SIGTERM into a flag checked between steps, so the state stays consistent."""
 
-    def __init__(self, enabled: bool = True):
+    def __init__(self, enabled: bool = True, signals=(signal.SIGINT, signal.SIGTERM)):
         self.hit = False
         self.enabled = enabled
+        self.signals = signals
         self._old = {}
 
     def __enter__(self):
-        for sig in (signal.SIGINT, signal.SIGTERM) if self.enabled else ():
+        for sig in self.signals if self.enabled else ():
             try:
                 self._old[sig] = signal.signal(sig, self._handler)
             except ValueError:  # not the main thread
@@ -280,26 +280,30 @@ class Outcome:
     error: Unstable | None = None
 
 
+def _no_limit(step: int) -> None:
+    return None
+
+
 def run_loop(sim: Simulation, n_steps: int, every: int, reporters=(), *, stop_at_step: int | None = None,
              interruptible: bool = True, interrupt: "_Interrupt | None" = None) -> Outcome:
     """Step ``sim`` to ``n_steps`` with a sample every ``every`` steps (and at the last step),
     handing each sample to ``reporters`` in order. SIGINT/SIGTERM (when ``interruptible``) and
     ``stop_at_step`` end the run as ``interrupted`` between steps, with the state consistent; an
     ``Unstable`` raised by the guard, the collision step or a reporter ends it as ``unstable``.
-    ``interrupt``: a caller's handler already installed (a signal during the set-up before the
-    loop then ends the run before its first step)."""
+    ``interrupt``: a caller's handler installed before the loop (a Ctrl-C during the set-up then
+    ends the run before its first step)."""
     out = Outcome()
-    with (contextlib.nullcontext(interrupt) if interrupt is not None else _Interrupt(enabled=interruptible)) as stop:
+    with _Interrupt(enabled=interruptible) as stop:
         try:
             while sim.step_count < n_steps:
-                if stop.hit:
+                if stop.hit or (interrupt is not None and interrupt.hit):
                     out.status, out.message = "interrupted", f"interrupted at step {sim.step_count}"
                     break
                 chunk = min(every - sim.step_count % every, n_steps - sim.step_count)
                 if stop_at_step is not None and sim.step_count < stop_at_step:
                     chunk = min(chunk, stop_at_step - sim.step_count)
                 for r in reporters:
-                    limit = r.steps_to_next(sim.step_count)
+                    limit = getattr(r, "steps_to_next", _no_limit)(sim.step_count)
                     if limit is not None:
                         chunk = min(chunk, limit)
                 sim.step(chunk)
@@ -607,9 +611,10 @@ def run_scene(scene, params, out_dir: Path, progress: bool = True, max_steps: in
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     t_build = time.perf_counter()
-    # SIGINT/SIGTERM from here on (the set-up compiles for minutes on a cold cache) end the run as
-    # interrupted, with its summary, instead of killing it with nothing written
-    early = _Interrupt()
+    # Ctrl-C from here on (the set-up compiles for minutes on a cold cache) ends the run as
+    # interrupted, with its summary, instead of killing it with nothing written; SIGTERM is caught
+    # from the time loop on (a batch system's kill before it leaves no checkpoint to resume)
+    early = _Interrupt(signals=(signal.SIGINT,))
     with early:
         return _run_scene(scene, params, out_dir, progress, max_steps, checkpoint, checkpoint_every_s,
                           keep_checkpoint, stop_at_step, early, t_build)

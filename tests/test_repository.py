@@ -73,7 +73,7 @@ def test_the_papers_reading_is_in_the_repository_and_linked():
     for n in range(1, 22):  # every equation of the paper has its row
         assert re.search(rf"^\| \({n}\)|^\| \(\d+\), \({n}\)", text, re.M), f"Eq. ({n}) missing from paper/reading.md"
     assert "(paper/reading.md)" in (ROOT / "README.md").read_text()
-    assert "(reading.md)" in (ROOT / "paper" / "reproduction.md.j2").read_text()
+    assert "[paper/reading.md]({{ reading_link }})" in (ROOT / "paper" / "reproduction.md.j2").read_text()
 
 
 def _resolves(dotted: str) -> bool:
