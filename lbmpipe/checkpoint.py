@@ -170,60 +170,15 @@ def write(path: Path, sim, fingerprint: str, run: dict | None = None, run_arrays
     return path
 
 
-def read(path: Path, fingerprint: str | None = None) -> tuple[dict, dict[str, np.ndarray]]:
-    """``(head, arrays)`` of a checkpoint; refuses (``CheckpointError``) a file of another format
-    or, with ``fingerprint``, of another scene."""
-    path = Path(path)
-    try:
-        with np.load(path, allow_pickle=False) as z:
-            if not hasattr(z, "files"):  # a bare .npy array, not an archive
-                raise ValueError("a single NumPy array, not an lbmpipe archive")
-            arrays = {k: z[k] for k in z.files}
-    except Exception as exc:  # noqa: BLE001 - truncated, not a zip, bad members: all one answer
-        text = " ".join(str(exc).split())[:160] or type(exc).__name__
-        raise CheckpointError(f"cannot read the checkpoint {path} ({type(exc).__name__}: {text}); delete it to "
-                              "start afresh") from None
-    if _META not in arrays:
-        raise CheckpointError(f"{path} is not an lbmpipe checkpoint; delete it or choose another path")
-    try:
-        head = json.loads(arrays.pop(_META).tobytes().decode())
-        if not isinstance(head, dict):
-            raise ValueError("the header is not a mapping")
-    except (ValueError, UnicodeDecodeError) as exc:
-        raise CheckpointError(f"{path} has an unreadable header ({exc}); delete it to start afresh") from None
-    if head.get("format") != FORMAT:
-        raise CheckpointError(f"{path} has format {head.get('format')!r}, this lbmpipe reads {FORMAT!r}; "
-                              "delete it to start afresh")
-    if fingerprint is not None and head.get("fingerprint") != fingerprint:
-        raise CheckpointError(
-            f"the checkpoint {path} was written for a different scene (fingerprint {head.get('fingerprint', '?')[:12]} "
-            f"!= {fingerprint[:12]} of this scene); delete it to start afresh, or pass the scene it belongs to")
-    return head, arrays
+def _unreadable(path: Path, exc: Exception) -> CheckpointError:
+    text = " ".join(str(exc).split())[:160] or type(exc).__name__
+    return CheckpointError(f"cannot read the checkpoint {path} ({type(exc).__name__}: {text}); delete it to start "
+                           "afresh")
 
 
-def read_head(path: Path, fingerprint: str | None = None) -> dict:
-    """The header of a checkpoint (format, scene fingerprint, step), reading no state array:
-    ``lbmpipe run`` refuses a bad or foreign checkpoint with it before building the simulation.
-    Raises CheckpointError as :func:`read` does."""
-    path = Path(path)
-    try:
-        z = np.load(path, allow_pickle=False, mmap_mode=None)
-    except Exception as exc:  # noqa: BLE001 - not a file NumPy reads at all
-        raise CheckpointError(f"cannot read the checkpoint {path} ({type(exc).__name__}: "
-                              f"{' '.join(str(exc).split())[:160]}); delete it to start afresh") from None
-    if not hasattr(z, "files"):
-        raise CheckpointError(f"cannot read the checkpoint {path} (a single NumPy array, not an lbmpipe archive); "
-                              "delete it or choose another path")
-    try:
-        with z:
-            if _META not in z.files:
-                raise CheckpointError(f"{path} is not an lbmpipe checkpoint; delete it or choose another path")
-            raw = z[_META]
-    except CheckpointError:
-        raise
-    except Exception as exc:  # noqa: BLE001 - truncated archive, bad member
-        raise CheckpointError(f"cannot read the checkpoint {path} ({type(exc).__name__}: "
-                              f"{' '.join(str(exc).split())[:160]}); delete it to start afresh") from None
+def _check_head(path: Path, raw: np.ndarray, fingerprint: str | None) -> dict:
+    """The header decoded from its archive member ``raw``, refused (``CheckpointError``) if it is
+    unreadable, of another format or, with ``fingerprint``, of another scene."""
     try:
         head = json.loads(raw.tobytes().decode())
         if not isinstance(head, dict):
@@ -238,6 +193,46 @@ def read_head(path: Path, fingerprint: str | None = None) -> dict:
             f"the checkpoint {path} was written for a different scene (fingerprint {str(head.get('fingerprint', '?'))[:12]} "
             f"!= {fingerprint[:12]} of this scene); delete it to start afresh, or pass the scene it belongs to")
     return head
+
+
+def read(path: Path, fingerprint: str | None = None) -> tuple[dict, dict[str, np.ndarray]]:
+    """``(head, arrays)`` of a checkpoint; refuses (``CheckpointError``) a file of another format
+    or, with ``fingerprint``, of another scene."""
+    path = Path(path)
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            if not hasattr(z, "files"):  # a bare .npy array, not an archive
+                raise ValueError("a single NumPy array, not an lbmpipe archive")
+            arrays = {k: z[k] for k in z.files}
+    except Exception as exc:  # noqa: BLE001 - truncated, not a zip, bad members: all one answer
+        raise _unreadable(path, exc) from None
+    if _META not in arrays:
+        raise CheckpointError(f"{path} is not an lbmpipe checkpoint; delete it or choose another path")
+    return _check_head(path, arrays.pop(_META), fingerprint), arrays
+
+
+def read_head(path: Path, fingerprint: str | None = None) -> dict:
+    """The header of a checkpoint (format, scene fingerprint, step), reading no state array:
+    ``lbmpipe run`` refuses a bad or foreign checkpoint with it before building the simulation.
+    Raises CheckpointError as :func:`read` does."""
+    path = Path(path)
+    try:
+        z = np.load(path, allow_pickle=False, mmap_mode=None)
+    except Exception as exc:  # noqa: BLE001 - not a file NumPy reads at all
+        raise _unreadable(path, exc) from None
+    if not hasattr(z, "files"):
+        raise CheckpointError(f"cannot read the checkpoint {path} (a single NumPy array, not an lbmpipe archive); "
+                              "delete it or choose another path")
+    try:
+        with z:
+            if _META not in z.files:
+                raise CheckpointError(f"{path} is not an lbmpipe checkpoint; delete it or choose another path")
+            raw = z[_META]
+    except CheckpointError:
+        raise
+    except Exception as exc:  # noqa: BLE001 - truncated archive, bad member
+        raise _unreadable(path, exc) from None
+    return _check_head(path, raw, fingerprint)
 
 
 def load(path: Path, sim, fingerprint: str) -> tuple[dict, dict[str, np.ndarray]]:

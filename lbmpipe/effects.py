@@ -250,8 +250,11 @@ def collision_effect(scene, params, system):
     lo, hi, periodic, radius = domain_geometry(scene, params)
     dom = Domain.pipe(radius, hi[2] - lo[2], z0=lo[2]) if radius > 0 else Domain.box(lo, hi, periodic)
     c = scene.particles.collisions
+    # approaches no faster than twice one step's gravity kick (lattice units, dt = 1) are loads,
+    # not impacts (collisions module docstring)
+    rest = 2.0 * float(np.linalg.norm(system.gravity))
     return CollisionEffect(system, dom, CollisionParams(restitution=c.restitution, contact_gap=c.contact_gap_dx,
-                                                        overlap_tol=c.overlap_tol_dx), pairs=c.pairs)
+                                                        overlap_tol=c.overlap_tol_dx, rest_speed=rest), pairs=c.pairs)
 
 
 def assemble(scene, params, grid: bnd.Grid, system=None) -> Step:

@@ -1,6 +1,6 @@
 """Output files of a run, in physical units (mm, m/s, m^3/s, s), and the run summary.
 
-Every file and column is documented in the README ("Outputs"). Lattice values are converted here
+Every file and column is documented in docs/outputs.md. Lattice values are converted here
 through :class:`lbmpipe.units.Units`, nowhere else.
 """
 

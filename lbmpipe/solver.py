@@ -589,7 +589,7 @@ def run_scene(scene, params, out_dir: Path, progress: bool = True, max_steps: in
               stop_at_step: int | None = None) -> dict:
     """Run ``scene`` and write its outputs into ``out_dir``; returns the summary (also written).
 
-    Outputs (physical units; documented in the README): ``summary.json``, ``flow_rate.csv`` and,
+    Outputs (physical units; documented in docs/outputs.md): ``summary.json``, ``flow_rate.csv`` and,
     for a pipe, ``profile.csv`` (time-averaged axial velocity against radius). With particles,
     also ``particles.parquet`` (state per particle per sample) and ``particles_static.csv`` (shape
     and size per particle); particle nodes are excluded from the fluid observables, the flow rate

@@ -30,13 +30,15 @@ any fixed point (both bodies receive ``-/+ I p`` at the same point ``O``; for sp
 see below), and changes the kinetic energy by ``-(1 - k^2)/2 * m_eff (v_1p - v_2p)^2`` with
 ``1/m_eff = 1/m_1 + 1/m_2 + t_1 + t_2`` (zero for ``k = 1``).
 
-Impacts and loads: Eq. (17) reverses the approach speed of an impact. The approach that this
-step's force and torque kicks make (the velocities since the previous call, kept in
-``NeighbourList.memory``) is a load the contact carries, not an impact: reflected, a body resting
-on another under gravity leaves with ``k g dt`` every step and climbs through the contact gap,
-gaining energy. So the impulses are found in two phases: first at the velocities before the
-kicks, with ``k``; then with the kicks added back, with ``k = 0``. Without kicks (no forces, or a
-first call) only the first runs.
+Impacts and loads: Eq. (17) reverses the approach speed of an impact. An approach no faster
+than ``CollisionParams.rest_speed`` is a load the contact carries, not an impact, and is taken up
+with ``k = 0``: reflected, a body resting on another under gravity leaves with ``k g dt`` every
+step and climbs through the contact gap, gaining energy. The scene sets ``rest_speed`` to twice
+one step's gravity kick (``effects.collision_effect``); without gravity it is 0 and every approach
+is an impact. (Telling the kicks apart by the velocities since the previous call, and reflecting
+only the approach made before them, pumped energy into dense suspensions: the fluid's implicit
+velocity update is a kick of the order of the velocity itself, and the 50 % packings of the
+stability suite blew up within 40 steps.)
 
 When is a contact treated (``CollisionParams``):
 - touching: the signed gap is ``<= contact_gap``. The contact takes part in the impulse sweeps
@@ -126,7 +128,7 @@ from .contact import (WS_HINT, WS_WON, WS_SIZE, support3, ws_rows, bodies_overla
                       bounding_radii, list_displacement, listed_slots, neighbour_list, new_scratch, pipe_wall_contact,
                       plane_wall_contact)
 from .shapes import CYLINDER, SPHERE, bounding_radius
-from .rigid import Bodies, qmul, quat_to_matrix, quat_to_matrices, spin_angular_momentum_arrays
+from .rigid import Bodies, qmul, quat_to_matrix, quat_to_matrices
 
 PIPE = 0
 BOX = 1
@@ -217,6 +219,8 @@ class CollisionParams:
       started after 10-20, was done in about 6: 9-11 ms against 1.2-2.7 ms a step.
     - ``list_skin``: extra margin of the Verlet list kept over calls (``NeighbourList``): it is
       rebuilt once a body has moved by half of it. Only the cost depends on it, not the result.
+    - ``rest_speed``: approach speeds at or below it are loads, taken up with ``k = 0`` (module
+      docstring: impacts and loads).
     """
 
     restitution: float = 1.0
@@ -229,6 +233,7 @@ class CollisionParams:
     max_projection_iters: int = 200
     translation_iters: int = 20
     list_skin: float = 1.0
+    rest_speed: float = 0.0
 
     def __post_init__(self):
         if not (0.0 <= self.restitution <= 1.0):
@@ -239,6 +244,8 @@ class CollisionParams:
             raise ValueError(f"CollisionParams: translation_iters >= 1, max_projection_iters >= 1 ({self})")
         if not self.list_skin >= 0.0:
             raise ValueError(f"CollisionParams.list_skin must be >= 0, got {self.list_skin}")
+        if not self.rest_speed >= 0.0:
+            raise ValueError(f"CollisionParams.rest_speed must be >= 0, got {self.rest_speed}")
 
     @property
     def overlap_bound(self) -> float:
@@ -250,9 +257,7 @@ class NeighbourList:
     """The Verlet list of the pair search, kept from one call of ``resolve_collisions`` to the
     next (``lbmpipe.particles.contact.neighbour_list``; the kernel rebuilds it when a body has moved too
     far). The pairs taken from it are those of the cell scan, in its order, so a fresh list
-    changes no result. It also keeps each body's velocities after the call (``memory``), from
-    which the next call tells this step's force kicks from the impacts (``_force_kicks``); a run
-    keeps it (``CollisionEffect``, whose checkpoints hold it)."""
+    changes no result."""
 
     def __init__(self):
         self.start = np.zeros(1, dtype=np.int64)
@@ -260,9 +265,6 @@ class NeighbourList:
         self.win = np.zeros(0, dtype=np.int8)  # per slot: the exact cylinder candidate that won last
         self.xref = np.zeros((0, 3))
         self.meta = np.zeros(2)  # margin built for (0: not built), number of builds
-        # per body after the last call: velocity, lab spin angular momentum, valid flag (_remember);
-        # the next call takes the difference as that step's force and torque kicks
-        self.memory = np.zeros((0, 7))
 
     @property
     def builds(self) -> int:
@@ -382,10 +384,11 @@ def _impulse_terms(i, j, sx, sy, sz, c, c2, p, r, x, Rm, im, iinv, g, m):
 
 
 @njit(cache=True)
-def _gs_sweep(act, nact, ci, cj, p, g, v, wb, wl, Rm, im, k_rest, vtol, ver, ev1, ev2):
+def _gs_sweep(act, nact, ci, cj, p, g, v, wb, wl, Rm, im, k_rest, vtol, ver, ev1, ev2, vrest=0.0):
     """One Gauss-Seidel sweep of Eqs. (16)-(19) (pairs, ``cj >= 0``) and Eq. (21) (walls,
     ``cj < 0``) over the contacts ``act[:nact]``: contact m (bodies ci[m], cj[m], normal p[m],
-    terms g[m] of ``_impulse_terms``) gets its impulse if it approaches. ``ver`` counts the
+    terms g[m] of ``_impulse_terms``) gets its impulse if it approaches, with restitution
+    ``k_rest``, or 0 if it approaches no faster than ``vrest`` (a load). ``ver`` counts the
     impulses each body has received; a contact whose bodies have the counts of its last
     evaluation (``ev1``, ``ev2``) gives what it gave then: no impulse (after one it recedes, -k
     times as fast), and is skipped. ``wl`` holds A wb of the contacts' bodies (``lab_omegas``)
@@ -411,7 +414,8 @@ def _gs_sweep(act, nact, ci, cj, p, g, v, wb, wl, Rm, im, k_rest, vtol, ver, ev1
         if j >= 0:
             vn -= _normal_velocity(j, g[m, 3], g[m, 4], g[m, 5], p, m, v, wl)
         if vn > vtol and g[m, 12] > 0.0:  # a zero denominator: both bodies fixed
-            imp = (1.0 + k_rest) * vn / g[m, 12]  # Eq. (19) / Eq. (21), divided through by m_1
+            kk = k_rest if vn > vrest else 0.0  # a load is taken up, an impact reflected (Eq. (17))
+            imp = (1.0 + kk) * vn / g[m, 12]  # Eq. (19) / Eq. (21), divided through by m_1
             f = imp * im[i]
             for k in range(3):
                 v[i, k] -= f * p[m, k]  # Eq. (16)
@@ -458,57 +462,6 @@ def _impulse(i, j, sx, sy, sz, c, c2, p, x, v, wb, Rm, im, iinv, k_rest, vtol):
     ev = np.full(1, -1, dtype=np.int64)
     return _gs_sweep(np.zeros(1, dtype=np.int64), 1, np.full(1, i), np.full(1, j), pr, g, v, wb, wl, Rm, im, k_rest,
                      vtol, np.zeros(v.shape[0], dtype=np.int64), ev, ev.copy()) > 0
-
-
-@njit(cache=True)
-def _force_kicks(mem, v, wb, Rm, iinv, dv, dw):
-    """The velocity and body-frame angular velocity each body gained since the end of the
-    previous call (``mem``: velocity, lab spin angular momentum, valid flag; ``_remember``): the
-    force and torque kicks of this step, into dv, dw. A spin angular momentum unchanged to 1e-10
-    (free rotation keeps it; the drift changes it by round-off) counts as no torque. Returns the
-    number of bodies kicked."""
-    kicked = 0
-    for i in range(v.shape[0]):
-        if mem[i, 6] == 0.0:
-            continue
-        # spin before the kick: J^-1 A^T L_before
-        w0 = iinv[i, 0] * (Rm[i, 0, 0] * mem[i, 3] + Rm[i, 1, 0] * mem[i, 4] + Rm[i, 2, 0] * mem[i, 5])
-        w1 = iinv[i, 1] * (Rm[i, 0, 1] * mem[i, 3] + Rm[i, 1, 1] * mem[i, 4] + Rm[i, 2, 1] * mem[i, 5])
-        w2 = iinv[i, 2] * (Rm[i, 0, 2] * mem[i, 3] + Rm[i, 1, 2] * mem[i, 4] + Rm[i, 2, 2] * mem[i, 5])
-        d0 = wb[i, 0] - w0
-        d1 = wb[i, 1] - w1
-        d2 = wb[i, 2] - w2
-        if d0 * d0 + d1 * d1 + d2 * d2 > 1e-20 * (wb[i, 0] ** 2 + wb[i, 1] ** 2 + wb[i, 2] ** 2):
-            dw[i, 0], dw[i, 1], dw[i, 2] = d0, d1, d2
-        for k in range(3):
-            dv[i, k] = v[i, k] - mem[i, k]
-        if dv[i, 0] != 0.0 or dv[i, 1] != 0.0 or dv[i, 2] != 0.0 or dw[i, 0] != 0.0 or dw[i, 1] != 0.0 or dw[i, 2] != 0.0:
-            kicked += 1
-    return kicked
-
-
-@njit(cache=True)
-def _add_kicks(dv, dw, v, wb, ver):
-    """v += dv, wb += dw (``_force_kicks``); a body kicked counts as one more impulse received
-    (``ver``), so that its contacts are evaluated and tested again."""
-    for i in range(v.shape[0]):
-        if dv[i, 0] != 0.0 or dv[i, 1] != 0.0 or dv[i, 2] != 0.0 or dw[i, 0] != 0.0 or dw[i, 1] != 0.0 or dw[i, 2] != 0.0:
-            for k in range(3):
-                v[i, k] += dv[i, k]
-                wb[i, k] += dw[i, k]
-            ver[i] += 1
-
-
-@njit(cache=True)
-def _remember(mem, v, q, wb, inertia):
-    """mem <- velocity, lab spin angular momentum (Eq. (18)'s J w turned to the lab) and a valid
-    flag of every body, after a call: what ``_force_kicks`` compares the next call with."""
-    L = spin_angular_momentum_arrays(q, wb, inertia)
-    for i in range(v.shape[0]):
-        for k in range(3):
-            mem[i, k] = v[i, k]
-            mem[i, 3 + k] = L[i, k]
-        mem[i, 6] = 1.0
 
 
 @njit(cache=True)
@@ -1177,7 +1130,7 @@ def _resolve_kernel(
     kind, h, mass, inertia, x, v, q, wb, fixed,
     dcode, Rp, cx, cy, lo, hi, periodic,
     k_rest, contact_gap, spec, overlap_tol, manifold_tol, skin, max_sweeps, max_proj, max_trans, dt,
-    do_impulses, stats, pairs, list_skin, lstart, ljs, lwin, lxref, lmeta, mem,
+    do_impulses, stats, pairs, list_skin, lstart, ljs, lwin, lxref, lmeta, vrest,
 ):
     n = x.shape[0]
     Rm = quat_to_matrices(q)
@@ -1189,21 +1142,11 @@ def _resolve_kernel(
             im[i] = 1.0 / mass[i]
             for k in range(3):
                 iinv[i, k] = 1.0 / inertia[i, k]
-    # this step's force and torque kicks (velocities since the previous call), for the impulses
-    dvk = np.zeros((n, 3))
-    dwk = np.zeros((n, 3))
-    kicked = 0
-    if do_impulses and mem.shape[0] == n:
-        kicked = _force_kicks(mem, v, wb, Rm, iinv, dvk, dwk)
-    sweep = np.empty(n)  # fastest point speed |v| + |omega| r_b of each body, with or without the kicks
+    sweep = np.empty(n)  # fastest point speed |v| + |omega| r_b of each body
     vmax = 0.0
     for i in range(n):
         sp = math.sqrt(v[i, 0] ** 2 + v[i, 1] ** 2 + v[i, 2] ** 2)
         sp += math.sqrt(wb[i, 0] ** 2 + wb[i, 1] ** 2 + wb[i, 2] ** 2) * rb[i]
-        if kicked > 0:
-            s0 = math.sqrt((v[i, 0] - dvk[i, 0]) ** 2 + (v[i, 1] - dvk[i, 1]) ** 2 + (v[i, 2] - dvk[i, 2]) ** 2)
-            s0 += math.sqrt((wb[i, 0] - dwk[i, 0]) ** 2 + (wb[i, 1] - dwk[i, 1]) ** 2 + (wb[i, 2] - dwk[i, 2]) ** 2) * rb[i]
-            sp = max(sp, s0)
         sweep[i] = sp
         if not fixed[i]:
             vmax = max(vmax, sp)
@@ -1370,19 +1313,6 @@ def _resolve_kernel(
         act = np.empty(2 * nc, dtype=np.int64)
         ev1 = np.full(2 * nc, -1, dtype=np.int64)  # ver of the bodies at a contact's last impulse evaluation
         ev2 = np.full(2 * nc, -1, dtype=np.int64)
-        # Impacts at the velocities before this step's kicks, with restitution k (phase 0); then the
-        # kicks added and taken up inelastically (phase 1): Eq. (17) reverses the approach speed of
-        # an impact, while the approach a force makes within the step is a load the contact carries
-        # (reflected, a body resting on another under gravity left with k g dt every step and
-        # climbed through the contact gap, gaining energy). Without kicks (no forces, or no previous
-        # call) only phase 0 runs.
-        if kicked > 0:
-            for i in range(n):
-                for k in range(3):
-                    v[i, k] -= dvk[i, k]
-                    wb[i, k] -= dwk[i, k]
-        # phase: 0 impacts, 1 the kicks added
-        phase = 0
         wl = lab_omegas(wb, Rm)
         for rnd in range(max_sweeps):
             ntodo = 0
@@ -1489,8 +1419,8 @@ def _resolve_kernel(
                 # restitution k in the first half of the sweeps; a set of contacts still bouncing
                 # after them is a jam (a closed row with k = 1 passes blows back and forth without
                 # end): the remaining sweeps are inelastic (k = 0), which settles it
-                k_now = k_rest if phase == 0 and sweeps < max_sweeps // 2 else 0.0
-                applied = _gs_sweep(act, nact, ci, cj, gn, gt, v, wb, wl, Rm, im, k_now, vtol, ver, ev1, ev2)
+                k_now = k_rest if sweeps < max_sweeps // 2 else 0.0
+                applied = _gs_sweep(act, nact, ci, cj, gn, gt, v, wb, wl, Rm, im, k_now, vtol, ver, ev1, ev2, vrest)
                 sweeps += 1
                 applied_round += applied
                 if applied == 0:
@@ -1501,13 +1431,7 @@ def _resolve_kernel(
                 # jam kept every round at its own cap (10^4 sweeps a call in a squeezed row)
                 break
             if applied_round == 0 or nnear + ntouch == 0:
-                if phase == 1 or kicked == 0:
-                    break
-                phase = 1
-                _add_kicks(dvk, dwk, v, wb, ver)
-                wl = lab_omegas(wb, Rm)
-        if phase == 0 and kicked > 0:  # the rounds ran out before phase 1
-            _add_kicks(dvk, dwk, v, wb, ver)
+                break
         # contacts still approaching after the last sweep (only if a sweep cap was hit)
         unres = 0
         if sweeps >= max_sweeps:
@@ -1579,8 +1503,8 @@ def resolve_collisions(bodies: Bodies, domain: Domain, params: CollisionParams, 
     ``pairs=False`` skips the broad phase and all particle-particle contacts (walls only).
     Raises ``errors.Unstable`` (naming ``step``) when a body moves so fast that its reach per step
     spans the periodic length: the sign of a run that has blown up between guard checks.
-    ``nlist``: the pair search's Verlet list and the velocities after the call, to keep between
-    calls (time steps); None: a fresh one (no force kicks told apart: every approach is an impact).
+    ``nlist``: the pair search's Verlet list, to keep between calls (time steps); None: a fresh one
+    (the same result, at the cost of a new list).
     """
     n = bodies.n
     stats = np.zeros(_NSTATS)
@@ -1592,8 +1516,6 @@ def resolve_collisions(bodies: Bodies, domain: Domain, params: CollisionParams, 
     if nlist.xref.shape[0] != n:
         nlist.xref = np.zeros((n, 3))
         nlist.meta[0] = 0.0
-    if nlist.memory.shape[0] != n:
-        nlist.memory = np.zeros((n, 7))
     passes = 0
     for p in range(4):
         maxdisp, nlist.start, nlist.js, nlist.win, status = _resolve_kernel(
@@ -1602,7 +1524,7 @@ def resolve_collisions(bodies: Bodies, domain: Domain, params: CollisionParams, 
             float(params.restitution), float(params.contact_gap), bool(params.speculative), float(params.overlap_tol),
             float(params.manifold_tol), float(params.skin), int(params.max_sweeps), int(params.max_projection_iters),
             int(params.translation_iters), float(dt), p == 0, stats, bool(pairs), float(params.list_skin),
-            nlist.start, nlist.js, nlist.win, nlist.xref, nlist.meta, nlist.memory,
+            nlist.start, nlist.js, nlist.win, nlist.xref, nlist.meta, float(params.rest_speed),
         )
         if status:
             _refuse(status, bodies, params, lo, hi, step)
@@ -1610,7 +1532,6 @@ def resolve_collisions(bodies: Bodies, domain: Domain, params: CollisionParams, 
         # bodies pushed further than half the skin may meet pairs outside the list: rebuild it
         if maxdisp <= 0.5 * params.skin:
             break
-    _remember(nlist.memory, bodies.v, bodies.q, bodies.wb, bodies.inertia)
     return _stats_dict(stats, passes)
 
 
@@ -1677,8 +1598,6 @@ class CollisionEffect(Effect):
                        "max_overlap_before_lu": 0.0, "max_overlap_after_lu": 0.0}
         self.last: dict = {}
         self.nlist = NeighbourList()
-        # the velocities after the last call, an array of the effect so that checkpoints hold it
-        self.nlist.memory = self.collision_memory = np.zeros((system.n, 7))
 
     def __call__(self, sim) -> None:
         st = resolve_collisions(self.system.bodies, self.domain, self.params, 1.0, pairs=self.pairs,
