@@ -58,7 +58,7 @@ When is a contact treated (``CollisionParams``):
   test on the present gap and normal velocity misses. Touching contacts that do not approach at
   the start of a step skip this test: the sweeps take their geometry from the narrow phase;
 - touching and turning (with ``speculative``): a touching contact whose bodies turn by more than
-  half its gap plus ``overlap_tol`` at their bounding radii within the step gets a twin that takes
+  half of its gap plus half the overlap bound at their bounding radii within the step gets a twin that takes
   the speculative test above: the contact point holds only where it is, and a spinning cube's
   corner beside a face contact closes the gap elsewhere;
 - with several contacts the impulses are applied contact by contact (Gauss-Seidel) in repeated
@@ -95,9 +95,11 @@ lattice spacing). Every source of overlap, with what holds it:
    ``max_projection_iters`` (reported as ``max_overlap_after``);
 2. the drift after a call, of contacts the free-motion prediction covers: a speculative contact
    bounces within ``_TOI_TOL`` (1e-3) of touching; a touching contact is held at its present point
-   and, if its bodies turn by more than half its gap plus ``overlap_tol`` at their bounding radii,
-   its twin takes the speculative test (c), so other features turning into contact add at most
-   ``overlap_tol`` plus second order in the angle;
+   and, if its bodies turn by more than half of its gap plus half the overlap bound at their
+   bounding radii, its twin takes the speculative test (c), so other features turning into contact
+   add at most half the overlap bound plus second order in the angle (a slack of ``overlap_tol``
+   instead sent nearly every touching contact of 244 dense cylinders, turning by ~1e-3 rad a
+   step, to the test, and doubled the cost per contact);
 3. contacts left approaching at the sweep caps: ``stats["unresolved"]``; the last half of the
    sweeps are inelastic, which settles the jams that bounce without end at ``k = 1``;
 4. motion the prediction does not see: the next step's force and torque kicks (the call comes
@@ -1363,10 +1365,11 @@ def _resolve_kernel(
             # (c): a touching contact is held at its present point, where the sweeps leave it not
             # approaching; another feature of a turning body can still close the gap within the step
             # (a spinning cube's corner beside a face contact at the face centre). If the bodies
-            # turn by more than half the gap plus overlap_tol at their bounding radii (a point other
-            # than the contact point approaches by at most its distance from it, 2 r_b, times the
-            # angle), its twin (row nc + m) takes the speculative test (b) with the velocities of
-            # this round. The paper's suspensions turn by ~1e-3 rad a step: the test is skipped.
+            # turn by more than half of the gap plus half the overlap bound at their bounding radii (a
+            # point other than the contact point approaches by at most its distance from it, 2 r_b,
+            # times the angle), its twin (row nc + m) takes the speculative test (b) with the
+            # velocities of this round. The paper's suspensions turn by ~1e-3 rad a step: the test is
+            # skipped.
             ntodo = 0
             for t in range(ntouch):
                 m = touch[t]
@@ -1385,7 +1388,7 @@ def _resolve_kernel(
                 turn = sweep[i] - math.sqrt(v[i, 0] ** 2 + v[i, 1] ** 2 + v[i, 2] ** 2)
                 if j != i:
                     turn += sweep[j] - math.sqrt(v[j, 0] ** 2 + v[j, 1] ** 2 + v[j, 2] ** 2)
-                if 2.0 * turn * dt <= gap + overlap_tol:
+                if 2.0 * turn * dt <= gap + 0.5 * OVERLAP_BOUND_FACTOR * overlap_tol:
                     continue
                 todo[ntodo] = m
                 ntodo += 1
