@@ -63,7 +63,7 @@ def test_claim4_contradicted_when_cube_rotations_clearly_rise_with_concentration
     cube_table(tmp_path, [0.6, 0.55, 0.5], [1.2, 1.1, 0.8], 0.05)
     row = claim_row(tmp_path, CUBE_CASES, 4)
     assert row.verdict == "contradicted"
-    assert "likely" in row.reason
+    assert "diagnosed" in row.reason and "averaging too short" not in row.reason
 
 
 def test_claim4_inconclusive_when_the_confidence_intervals_overlap(tmp_path):
@@ -199,3 +199,52 @@ def test_claim13_a_flattened_profile_with_particles_differs_greatly_from_the_par
     assert f"vs parabola: {d_par:.3g}" in row["values"]
     write_profile(tmp_path, claims.PROFILE_CASE, parabola * 1.005, parabola)
     assert claim_row(tmp_path, cases, 13).verdict == "contradicted"
+
+
+def _stats(tmp_path, name, **extra):
+    d = tmp_path / "cases" / name
+    d.mkdir(parents=True, exist_ok=True)
+    base = {"frozen": {"frozen": False, "remaining": 0.1, "threshold": 0.5}, "locked": {"locked": False},
+            "health": {"issues": []}, "spinup": {"steady": True},
+            "omega_intervals": {a: {"sufficient": True, "required_s": 1.0, "duration_s": 5.0} for a in "xyz"},
+            "resolution": {"lattice_spacings": 3.2}}
+    base.update(extra)
+    (d / "stats.json").write_text(json.dumps(base))
+
+
+def test_contradiction_reason_names_the_frozen_case_and_the_duration_its_interval_needs(tmp_path):
+    cube_table(tmp_path, [0.6, 0.55, 0.5], [1.2, 1.1, 0.8], 0.05)
+    _stats(tmp_path, "cube8_c30_re9.4")
+    _stats(tmp_path, "cube8_c50_re9.4", frozen={"frozen": True, "remaining": 0.97, "threshold": 0.5},
+           omega_intervals={"z": {"sufficient": False, "required_s": 42.0, "duration_s": 1.5}})
+    row = claim_row(tmp_path, CUBE_CASES, 4)
+    assert row.verdict == "contradicted"
+    assert "cube8_c50_re9.4: frozen (orientation correlation with the packing 0.97" in row.reason
+    assert "cube8_c50_re9.4: interval too short for |Omega_z| (1.5 s averaged, 42 s needed" in row.reason
+    assert "cube8_c30_re9.4: frozen" not in row.reason
+    assert "cube8_c30_re9.4: smallest particle dimension 3.2 lattice spacings" in row.reason  # a fact, not a blame
+
+
+def test_contradiction_of_healthy_unflagged_cases_is_called_a_genuine_difference(tmp_path):
+    cube_table(tmp_path, [0.6, 0.55, 0.5], [1.2, 1.1, 0.8], 0.05)
+    for name in CUBE_CASES:
+        _stats(tmp_path, name)
+    row = claim_row(tmp_path, CUBE_CASES, 4)
+    assert "genuine difference" in row.reason and "frozen" not in row.reason
+
+
+def test_reproduced_claim_still_lists_its_locked_and_unhealthy_cases(tmp_path):
+    cube_table(tmp_path, [1.2, 1.1, 0.8], [0.6, 0.55, 0.5], 0.05)
+    _stats(tmp_path, "cube8_c30_re9.4", locked={"locked": True, "column": True},
+           health={"issues": ["mass drift 0.0485 > 0.001"]})
+    _stats(tmp_path, "cube8_c50_re9.4")
+    row = claim_row(tmp_path, CUBE_CASES, 4)
+    assert row.verdict == "reproduced"
+    assert "cube8_c30_re9.4: locked (a column" in row.reason
+    assert "cube8_c30_re9.4: unhealthy (mass drift 0.0485 > 0.001)" in row.reason
+
+
+def test_claim_reason_of_stats_without_diagnostics_asks_for_a_rerun(tmp_path):
+    cube_table(tmp_path, [0.6, 0.55, 0.5], [1.2, 1.1, 0.8], 0.05)
+    row = claim_row(tmp_path, CUBE_CASES, 4)
+    assert "not computed by this version of the statistics" in row.reason

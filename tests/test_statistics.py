@@ -9,6 +9,7 @@ import pandas as pd
 import pytest
 from scipy.signal import lfilter
 
+from lbmpipe.reproduction import health, steady
 from lbmpipe.reproduction import statistics as S
 from lbmpipe.particles.rigid import quat_from_axis_angle, quat_mul, rotate
 
@@ -92,16 +93,6 @@ def test_batch_means_too_short_series_gives_nan_half_width():
     assert S.batch_means(np.arange(8.0), n_batches=10)[2] == 4
 
 
-def test_integrated_autocorrelation_time_of_ar1_matches_exponential_correlation_integral():
-    rng = np.random.default_rng(2)
-    dt, phi = 0.02, 0.8
-    x = _ar1(phi, 40000, 1, 0.0, rng)[0]
-    exact = dt * (1 + phi) / (2 * (1 - phi))  # dt (1/2 + sum phi^k)
-    assert S.integrated_autocorrelation_time(x, dt) == pytest.approx(exact, rel=0.15)
-    white = rng.standard_normal(40000)
-    assert S.integrated_autocorrelation_time(white, dt) == pytest.approx(dt / 2, rel=0.15)
-
-
 # ---------------------------------------------------------------- orientation angles
 
 def test_cylinder_rotated_30_deg_about_x_has_axis_angle_30():
@@ -155,21 +146,21 @@ def _omega_case(tmp_path):
     return t, omega
 
 
-def test_mean_abs_omega_is_mean_over_particles_and_samples_after_spinup(tmp_path):
+def test_mean_abs_omega_is_mean_over_particles_and_samples_after_spinup_with_mean_interval(tmp_path):
     t, omega = _omega_case(tmp_path)
     s = S.case_statistics("c", tmp_path / "c", CYL_CFG)
     keep = t > 0.3 + 1e-12
+    # no scene in the summary: no viscous time, the run's own spin-up is the floor; 6 samples left
     assert s["samples"] == 6 and s["spinup_s"] == 0.3 and s["status"] == "completed"
     for k, a in enumerate("xyz"):
         hand = np.abs(omega[keep, :, k]).mean()
         assert s["mean_abs_omega_rad_s"][a] == pytest.approx(hand, rel=1e-12)
         series = np.abs(omega[keep, :, k]).mean(axis=1)
-        b = 3  # 6 samples -> 3 batches of 2
-        bm = series.reshape(b, 2).mean(axis=1)
-        from scipy import stats
-        hw = stats.t.ppf(0.975, b - 1) * bm.std(ddof=1) / math.sqrt(b)
-        assert s["ci95_rad_s"][a] == pytest.approx(hw, rel=1e-10)
-    assert s["n_batches"] == 3 and s["n_particles"] == 3
+        ref = steady.mean_interval(series, 0.1)
+        assert s["ci95_rad_s"][a] == pytest.approx(ref["ci95"], nan_ok=True)
+        assert s["omega_intervals"][a]["sufficient"] is False  # 6 samples are never 20 batches of 5 tau_int
+        assert s["omega_intervals"][a]["required_s"] > 0.6
+    assert s["n_particles"] == 3
     assert (s["shape"], s["size_label"], s["reynolds"], s["concentration"]) == ("cylinder", "16x16 mm", 26.0, 0.3)
 
 
@@ -283,3 +274,120 @@ def test_runtime_table_reads_benchmarks_and_tolerates_missing_ones(tmp_path):
     assert rt.loc["a", "wall_s"] == 3.5 and rt.loc["a", "max_rss_mb"] == 280.5
     assert rt.loc["a", "s_per_step"] == pytest.approx(2.0 / 100)  # summary wall_seconds / steps
     assert rt.loc["b", "status"] == "not run" and math.isnan(rt.loc["b", "wall_s"])
+
+
+# ---------------------------------------------------------------- steady state and diagnostics
+
+PIPE_SCENE = {"scene": {"domain": {"diameter_mm": 50.0, "length_mm": 100.0}, "fluid": {"viscosity_m2_s": None},
+                        "numerics": {"dx_mm": 2.0}, "driving": {"flow_rate_m3_s": 1.0e-4}},
+              "lattice": {"nu_lu": 0.5, "units": {"dx_m": 1.0e-3, "dt_s": 1.0e-3}}}  # nu 5e-4 m^2/s: R^2/nu 1.25 s
+
+
+def _long_case(tmp_path, n=600, dt=0.02, transient_s=0.0, frozen=True, summary_extra=None, seed=3):
+    """4 cylinders, AR(1) spins about 1 rad/s (with a decaying spin-up excess lasting ``transient_s``),
+    orientations fixed (frozen) or tumbling with random steps; flow_rate.csv with the driving force."""
+    rng = np.random.default_rng(seed)
+    t = np.round(np.arange(1, n + 1) * dt, 9)
+    omega = 1.0 + 0.2 * _ar1(0.5, n, 12, 0.0, rng).T.reshape(n, 4, 3)
+    if transient_s:
+        omega += 5.0 * np.exp(-t / (transient_s / 5.0))[:, None, None]
+    q = np.zeros((n, 4, 4))
+    q[..., 0] = 1.0
+    if not frozen:
+        steps = rng.normal(0.0, 0.3, (n, 4, 4))
+        q = np.cumsum(steps, axis=0) + q
+        q /= np.linalg.norm(q, axis=-1, keepdims=True)
+    write_case(tmp_path / "c", t, omega, q=q, spinup_s=0.1, summary_extra={**PIPE_SCENE, **(summary_extra or {})})
+    force = 700.0 + 5.0 * rng.standard_normal(n) + (300.0 * np.exp(-t / (transient_s / 5.0)) if transient_s else 0.0)
+    pd.DataFrame({"t_s": t, "q_m3_s": 1e-4, "force_density_N_m3": force,
+                  "max_density_deviation": np.linspace(0.01, 0.05, n)}).to_csv(tmp_path / "c" / "flow_rate.csv",
+                                                                                index=False)
+    return t
+
+
+def test_spinup_is_never_shorter_than_two_viscous_times_and_records_the_halves_evidence(tmp_path):
+    _long_case(tmp_path)  # stationary from the start: MSER cuts almost nothing
+    s = S.case_statistics("c", tmp_path / "c", CYL_CFG)
+    sp = s["spinup"]
+    assert sp["viscous_time_s"] == pytest.approx(0.025 ** 2 / 5e-4)
+    assert s["spinup_s"] >= 2 * sp["viscous_time_s"] - 1e-9
+    assert {"force_density", "mean_abs_omega_x", "orientation_order"} <= set(sp["observables"])
+    for ev in sp["observables"].values():
+        assert {"first", "second", "first_ci95", "second_ci95", "agree"} <= set(ev)
+    assert "not available" in sp["profile_observable"]
+
+
+def test_spinup_detected_on_a_transient_longer_than_two_viscous_times(tmp_path):
+    _long_case(tmp_path, n=1500, transient_s=6.0)
+    s = S.case_statistics("c", tmp_path / "c", CYL_CFG)
+    assert s["spinup"]["limited_by"] != "min_spinup"
+    assert s["spinup_s"] > 2 * s["spinup"]["viscous_time_s"]
+    # the |Omega| mean is of the stationary part (1 rad/s plus |AR noise| bias), not of the spin-up excess
+    assert s["mean_abs_omega_rad_s"]["x"] < 1.2
+
+
+def test_run_shorter_than_two_viscous_times_is_flagged_not_steady(tmp_path):
+    _long_case(tmp_path, n=100)  # 2 s < 2.5 s
+    s = S.case_statistics("c", tmp_path / "c", CYL_CFG)
+    assert s["spinup"]["steady"] is False and s["spinup_s"] == 0.1
+    assert s["spinup"]["required_s"] == pytest.approx(2.5)
+    assert "not steady" in s["flags"]
+
+
+def test_fixed_orientations_are_frozen_and_tumbling_ones_are_not(tmp_path):
+    _long_case(tmp_path / "a", frozen=True)
+    _long_case(tmp_path / "b", frozen=False)
+    fa = S.case_statistics("c", tmp_path / "a" / "c", CYL_CFG)
+    fb = S.case_statistics("c", tmp_path / "b" / "c", CYL_CFG)
+    assert fa["frozen"]["frozen"] and fa["frozen"]["remaining"] == pytest.approx(1.0)
+    assert not fb["frozen"]["frozen"] and fb["frozen"]["remaining"] < 0.5
+    assert "frozen" in fa["flags"] and "frozen" not in fb["flags"]
+    assert fa["frozen"]["threshold"] == health.thresholds()["frozen_remaining"]
+
+
+def test_orientation_interval_is_designed_on_the_orientation_correlation_time_not_the_spins(tmp_path):
+    _long_case(tmp_path, frozen=False)
+    s = S.case_statistics("c", tmp_path / "c", CYL_CFG)
+    tau_o = s["orientation_memory"]["tau_orient_s"]
+    iv = s["orientation"]["cyl_axis_angle"]["interval"]
+    assert tau_o > max(s["tau_int_s"].values())  # a random walk of orientations decorrelates slower than the spins
+    assert iv["tau_int_s"] >= tau_o - 1e-12
+
+
+def test_mass_drift_beyond_its_threshold_makes_the_case_unhealthy(tmp_path):
+    _long_case(tmp_path, summary_extra={"mass_drift_rel": 0.0485, "steps": 600,
+                                        "collisions": {"rotation_projections": 3, "max_overlap_after_lu": 0.01}})
+    s = S.case_statistics("c", tmp_path / "c", CYL_CFG)
+    h = s["health"]
+    assert h["density_deviation_median"] == pytest.approx(0.03) and h["density_deviation_max"] == pytest.approx(0.05)
+    assert h["rotation_projection_share"] == pytest.approx(3 / 600)
+    assert any(i.startswith("mass drift") for i in h["issues"]) and "unhealthy" in s["flags"]
+    _long_case(tmp_path / "ok", summary_extra={"mass_drift_rel": 1e-6})
+    assert "unhealthy" not in S.case_statistics("c", tmp_path / "ok" / "c", CYL_CFG)["flags"]
+
+
+def test_run_health_table_has_a_row_per_case_and_flags_the_one_beyond_a_threshold(tmp_path):
+    fid = tmp_path / "lvl"
+    _long_case(fid / "cases", summary_extra={"mass_drift_rel": 0.05})
+    cases = {"c": CYL_CFG, "gone": CYL_CFG}
+    S.write_case_outputs("c", fid / "cases" / "c", CYL_CFG)
+    health.run_health_table(fid, cases)
+    t = pd.read_csv(fid / "tables" / "run_health.csv").set_index("case")
+    assert list(t.index) == ["c", "gone"]
+    assert "unhealthy" in t.loc["c", "flags"] and "mass drift" in t.loc["c", "issues"]
+    assert t.loc["gone", "status"] == "not run"
+
+
+def test_diagnostics_thresholds_are_validated_by_check_config():
+    import copy
+    from pathlib import Path
+
+    import yaml
+    from lbmpipe.reproduction.cases import config_problems
+
+    root = Path(__file__).resolve().parents[1]
+    cfg = yaml.safe_load((root / "config.yaml").read_text())
+    bad = copy.deepcopy(cfg)
+    bad["diagnostics"]["frozen_remaining"] = 2.0
+    schema = root / "workflow" / "schemas" / "config.schema.yaml"
+    assert any("diagnostics.frozen_remaining" in p for p in config_problems(bad, schema))

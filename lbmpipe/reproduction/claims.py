@@ -24,6 +24,11 @@ Verdicts (ordering claims):
 Claims of *no effect* (11, 12) are equivalence tests against a stated margin, and claim 13
 (profile "changed greatly") compares a distance with the particle-free discretisation error;
 their rules are in their ``statistic`` text.
+
+Reasons. A contradiction's reason is built from the measured diagnostics of the claim's own cases
+(:func:`case_diagnoses`: frozen, locked, unhealthy, not steady, interval too short with the
+duration needed, resolution in lattice spacings), each naming its case; any other verdict lists
+the flagged cases it rests on.
 """
 
 from __future__ import annotations
@@ -35,6 +40,8 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
+
+from . import health
 
 AXES = ("x", "y", "z")
 COLUMNS = ["claim", "statement", "statistic", "values", "verdict", "reason"]
@@ -68,10 +75,6 @@ PROFILE_NOISE_FACTOR = 3.0
 #: the pair of claim 13 and of claim 14 (config names, paper/reading.md)
 PROFILE_CASE, PROFILE_REFERENCE = "cyl16x16_c30_re26", "flow_re26"
 ALIGN_CASE, ALIGN_NOCOLL_CASE = "cyl8x16_c30_re9.4", "cyl8x16_c30_re9.4_nocoll"
-#: particle-size resolution (lattice spacings) below which a contradiction is blamed on the lattice
-COARSE_NODES_PER_PARTICLE = 8.0
-#: averaging time (s) below which a contradiction is blamed on the averaging
-SHORT_AVERAGING_S = 10.0
 
 
 @dataclass
@@ -268,7 +271,7 @@ def ordering_verdict(cmps: list[Cmp], missing: list[str], inputs: Inputs, unit: 
         out.reason = f"the pooled 95 % interval excludes 0 in the claimed direction and no comparison is reversed{note_missing}"
     elif D + H < 0 and pos == 0:
         out.verdict = "contradicted"
-        out.reason = "the opposite ordering holds significantly; likely: " + likely_reason(inputs, out.cases) + note_missing
+        out.reason = "the opposite ordering holds significantly; diagnosed: " + diagnosed_reason(inputs, out.cases) + note_missing
     else:
         why = ("mixed: some comparisons significant each way" if pos and neg else
                "the 95 % intervals overlap (difference not significant)")
@@ -276,30 +279,50 @@ def ordering_verdict(cmps: list[Cmp], missing: list[str], inputs: Inputs, unit: 
     return out
 
 
-def likely_reason(inputs: Inputs, cases: list[str]) -> str:
-    """Most probable cause of a contradiction at this level: a lattice too coarse for the particles,
-    an averaging window too short, or, if neither, a genuine disagreement with the paper."""
-    res, avg = [], []
-    for name in cases:
-        s = _read_json(inputs.fid_dir / "cases" / name / "summary.json") or {}
-        scene = s.get("scene") or {}
-        dx = (scene.get("numerics") or {}).get("dx_mm")
-        p = (inputs.cases.get(name) or {}).get("particles") or {}
-        size = min(float(v) for k, v in p.items() if k in ("diameter_mm", "length_mm", "edge_mm")) if p else None
-        if dx and size:
-            res.append(size / float(dx))
-        if s.get("simulated_seconds") is not None and s.get("spinup_s") is not None:
-            avg.append(float(s["simulated_seconds"]) - float(s["spinup_s"]))
-    bits = []
-    if res and min(res) < COARSE_NODES_PER_PARTICLE:
-        bits.append(f"fidelity too coarse (smallest particle dimension {min(res):.3g} lattice spacings, "
-                    f"< {COARSE_NODES_PER_PARTICLE:g})")
-    if avg and min(avg) < SHORT_AVERAGING_S:
-        bits.append(f"averaging too short ({min(avg):.3g} s of simulated time after spin-up, "
-                    f"the paper averaged for about a day of computing)")
-    if not bits:
-        bits.append("the resolution and averaging are not obviously insufficient: a genuine difference from "
-                    "the paper, or a difference in the unstated angular-velocity statistic")
+def case_diagnoses(inputs: Inputs, name: str) -> list[str]:
+    """What the measured diagnostics of one case's ``stats.json`` say about it
+    (:mod:`lbmpipe.reproduction.health`): frozen, locked, unhealthy, not steady, intervals too short
+    (with the duration needed), and its resolution in lattice spacings as a fact. Each item names
+    the case."""
+    s = _read_json(inputs.fid_dir / "cases" / name / "stats.json") or {}
+    if not health.health_is_computed(s):
+        return [f"{name}: diagnostics {health.NOT_COMPUTED}"]
+    out = []
+    fr = s.get("frozen") or {}
+    if fr.get("frozen"):
+        out.append(f"{name}: frozen (orientation correlation with the packing {_f(fr.get('remaining'))} left at the "
+                   f"end > {_f(fr.get('threshold'))})")
+    lk = s.get("locked") or {}
+    if lk.get("locked"):
+        why = ("a column: two bodies cannot sit side by side in the pipe" if lk.get("column") else
+               f"no pair passed, {_f(lk.get('neighbours_retained'))} of the nearest neighbours kept")
+        out.append(f"{name}: locked ({why})")
+    issues = (s.get("health") or {}).get("issues") or []
+    if issues:
+        out.append(f"{name}: unhealthy ({'; '.join(issues)})")
+    spin = s.get("spinup") or {}
+    if spin and not spin.get("steady", True):
+        out.append(f"{name}: not steady ({spin.get('message') or 'halves of the window disagree'})")
+    short = [(a, r) for a, r in (s.get("omega_intervals") or {}).items() if not r.get("sufficient")]
+    if short:
+        need = max(float(r.get("required_s") or 0.0) for _, r in short)
+        have = max(float(r.get("duration_s") or 0.0) for _, r in short)
+        out.append(f"{name}: interval too short for |Omega_{','.join(a for a, _ in short)}| ({_f(have)} s averaged, "
+                   f"{_f(need)} s needed for 20 batches of 5 tau_int)")
+    res = (s.get("resolution") or {}).get("lattice_spacings")
+    if res is not None and np.isfinite(res):
+        out.append(f"{name}: smallest particle dimension {_f(res)} lattice spacings")
+    return out
+
+
+def diagnosed_reason(inputs: Inputs, cases: list[str]) -> str:
+    """The reason of a verdict from the measured diagnostics of its own cases (:func:`case_diagnoses`);
+    when none flags a case, a genuine difference from the paper (or the unstated statistic)."""
+    bits = [d for name in cases for d in case_diagnoses(inputs, name)]
+    flagged = [d for d in bits if "lattice spacings" not in d]
+    if not flagged:
+        bits.append("no diagnostic flags these cases: a genuine difference from the paper, or a difference in "
+                    "the unstated statistic")
     return "; ".join(bits)
 
 
@@ -521,8 +544,8 @@ def claim11(inp: Inputs) -> Outcome:
         out.reason = "inputs missing: " + "; ".join(missing)
     elif prefer:
         out.verdict = "contradicted"
-        out.reason = ("significant preference in " + ", ".join(prefer) + "; likely: "
-                      + likely_reason(inp, out.cases) + note)
+        out.reason = ("significant preference in " + ", ".join(prefer) + "; diagnosed: "
+                      + diagnosed_reason(inp, out.cases) + note)
     elif not wide:
         out.verdict = "reproduced"
         out.reason = "every bin is uniform within the tolerance at 95 % (Bonferroni)" + note
@@ -547,8 +570,8 @@ def claim12(inp: Inputs) -> Outcome:
         out.reason = "inputs missing: " + "; ".join(missing)
     elif any(c.lo > m or c.hi < -m for c in cmps):
         out.verdict = "contradicted"
-        out.reason = (f"the Reynolds number shifts the mean angle by more than {m:g} deg; likely: "
-                      + likely_reason(inp, out.cases) + note)
+        out.reason = (f"the Reynolds number shifts the mean angle by more than {m:g} deg; diagnosed: "
+                      + diagnosed_reason(inp, out.cases) + note)
     elif all(-m < c.lo and c.hi < m for c in cmps):
         out.verdict = "reproduced"
         out.reason = f"every difference is within ±{m:g} deg at 95 %" + note
@@ -592,8 +615,8 @@ def claim13(inp: Inputs) -> Outcome:
         out.reason = f"the particles change the profile by more than {_f(big)} (relative L2)"
     elif d_free < small and d_par < small:
         out.verdict = "contradicted"
-        out.reason = ("the profile with particles is indistinguishable from the particle-free one; likely: "
-                      + likely_reason(inp, [PROFILE_CASE]))
+        out.reason = ("the profile with particles is indistinguishable from the particle-free one; diagnosed: "
+                      + diagnosed_reason(inp, [PROFILE_CASE]))
     else:
         out.reason = f"a change between {_f(small)} and {_f(big)}: present but not clearly 'great'"
     return out
@@ -626,6 +649,11 @@ def evaluate_claims(fid_dir: Path, config_cases: dict) -> pd.DataFrame:
     rows = []
     for k, fn in CLAIMS.items():
         o = fn(inp)
+        if o.verdict != "contradicted" and o.cases:
+            flagged = [d for name in o.cases for d in case_diagnoses(inp, name)
+                       if "lattice spacings" not in d and health.NOT_COMPUTED not in d]
+            if flagged:
+                o.reason += "; flagged cases: " + "; ".join(flagged)
         rows.append({"claim": k, "statement": STATEMENTS[k], "statistic": o.statistic, "values": o.values,
                      "verdict": o.verdict, "reason": o.reason})
     return pd.DataFrame(rows, columns=COLUMNS)

@@ -473,6 +473,43 @@ def runtime_section(fid_dir: Path, fidelity: str) -> dict:
     return sec
 
 
+def health_section(fid_dir: Path, config: dict) -> dict:
+    """Run health and diagnostics, one row per case (:func:`lbmpipe.reproduction.health.health_row`:
+    from ``summary.json``, ``flow_rate.csv`` and ``stats.json``), thresholds from ``config.yaml``'s
+    ``diagnostics`` block; the diagnostics of a ``stats.json`` written before they existed read
+    "not computed"."""
+    import pandas as pd
+
+    from . import health
+
+    diag = health.thresholds(config)
+    rows, stale = [], []
+    for name in config.get("cases") or {}:
+        cdir = Path(fid_dir) / "cases" / name
+        r = health.health_row(name, cdir, diag["health"])
+        stats = health.read_json(cdir / "stats.json")
+        if stats is not None and not health.health_is_computed(stats):
+            stale.append(name)
+            r.update(frozen="not computed", locked="not computed", steady="not computed")
+        r["rotation_projection_share"] = r.pop("rotation_projection_share")
+        r["flags"] = r["flags"].replace(";", ", ") or "none"
+        rows.append(r)
+    cols = ["case", "status", "mass_floor_rel", "mass_drift_rel", "mass_corrected_rel", "density_deviation_median",
+            "density_deviation_max", "rotation_projection_share", "max_overlap_lu", "flow_rate_error_rel", "frozen",
+            "locked", "steady", "flags", "issues"]
+    limits = ", ".join(f"`{k}` = {fmt(v)}" for k, v in diag["health"].items())
+    intro = (f"Thresholds (`config.yaml`, `diagnostics`): {limits}; frozen beyond "
+             f"{fmt(diag['frozen_remaining'])} of the orientation correlation with the packing left at the end, "
+             f"locked when no pair passed and {fmt(diag['locked_neighbours_retained'])} of the nearest neighbours "
+             f"are kept (or the bodies cannot sit side by side), spin-up at least "
+             f"{fmt(diag['min_spinup_viscous_times'])} R²/ν. A case beyond a threshold is flagged in every table, "
+             "figure and claim that uses it. `mass_corrected_rel` is – where `summary.json` does not record the "
+             "mass correction.")
+    note = (f"Frozen, locked and steady: {health.NOT_COMPUTED} ({', '.join(f'`{c}`' for c in stale)})."
+            if stale else "")
+    return {"table": table_of(pd.DataFrame(rows, columns=cols)), "intro": intro, "note": note}
+
+
 def study_section(fid_dir: Path, out_dir: Path) -> dict:
     """The accuracy-cost study: its Markdown reports (``study/*.md``, generated from its CSVs), any
     CSV without a report as a table, and its figures."""
@@ -538,6 +575,7 @@ def build_context(repo_root: Path, fid_dir: Path, fidelity: str, config: dict, o
         "claims": claims_ctx,
         "stability": table_of(stability) if stability is not None else None,
         "study": study_section(fid_dir, out_dir),
+        "health": health_section(fid_dir, config),
         "runtime": runtime_section(fid_dir, fidelity),
         "missing": lambda rel: f"not built at this level: `{_rel_to(fid_dir, repo_root)}/{rel}` missing",
     }

@@ -2,11 +2,16 @@
 
 Angular velocity (Figs. 4-7). The paper does not define its statistic; we use (paper/reading.md) the
 mean of ``|Omega_a|``, ``a`` in {x, y, z}, LAB-frame components, over all free particles and all
-sampled times ``t > spinup_s``. Its 95 % confidence interval comes from batch means of the
-particle-averaged time series ``m_a(t) = <|Omega_a|>_particles(t)``: the samples of one run are
+sampled times ``t > spinup_s``, the spin-up found by MSER-5 on the driving force, ``|Omega_a|``
+and the orientation order, never shorter than two viscous times ``R^2/nu``
+(:func:`lbmpipe.reproduction.steady.spinup_end`). Its 95 % confidence interval comes from batch
+means of the particle-averaged time series ``m_a(t) = <|Omega_a|>_particles(t)`` with at least 20
+batches of at least 5 integrated correlation times, or overlapping batch means flagged with the
+duration needed (:func:`lbmpipe.reproduction.steady.mean_interval`): the samples of one run are
 correlated in time, so the naive iid interval would be too narrow, and the particles of one
 sample are correlated with each other through the crowded flow, so they are not counted as
-independent either.
+independent either. Orientation statistics get intervals designed on the orientation correlation
+time (:func:`lbmpipe.reproduction.steady.orientation_memory`), not the spin's.
 
 Orientation (Figs. 8, 9), from the unit quaternion ``q`` (body -> lab, Eq. (14)-(15), Eq. (20)
 for the matrix ``A``), the body axis ``k`` in the lab frame being the column ``A[:, k]``:
@@ -25,7 +30,9 @@ for the matrix ``A``), the body axis ``k`` in the lab frame being the column ``A
   A cube turned by ``theta`` about y gives ``theta`` folded (20 -> 20, 70 -> 20).
 
 Histograms pool particles and samples after spin-up (fractions sum to 1 over a kind); the 95 %
-CI of each bin is the batch-means half-width of the per-sample bin fraction.
+CI of each bin is the :func:`lbmpipe.reproduction.steady.mean_interval` half-width of the
+per-sample bin fraction. Diagnostics (frozen, locked, run health) and the flags they raise:
+:mod:`lbmpipe.reproduction.health`.
 """
 
 from __future__ import annotations
@@ -38,6 +45,10 @@ import numpy as np
 import pandas as pd
 from scipy import stats as _st
 
+from . import health as H
+from .steady import (locking_diagnostics, mean_interval, orientation_memory, orientation_order, rotation_matrices,
+                     spinup_end, viscous_time_s)
+
 AXES = ("x", "y", "z")
 CUBE_MAX_AXIS_ANGLE_DEG = math.degrees(math.acos(1.0 / math.sqrt(3.0)))  # 54.7356
 # (kind, upper edge of the range in degrees, number of bins)
@@ -49,11 +60,11 @@ ORIENTATION_COLUMNS = ["kind", "bin_lo_deg", "bin_hi_deg", "fraction", "ci95"]
 META_COLUMNS = ["case", "shape", "size_label", "diameter_mm", "length_mm", "edge_mm", "concentration",
                 "reynolds", "collisions"]
 ANGULAR_VELOCITY_COLUMNS = META_COLUMNS + ["status", "concentration_achieved", "n_particles", "samples",
-                                           "omega_x", "omega_y", "omega_z", "ci_x", "ci_y", "ci_z"]
+                                           "omega_x", "omega_y", "omega_z", "ci_x", "ci_y", "ci_z", "flags"]
 ORIENTATION_TABLE_COLUMNS = ["case", "shape", "size_label", "concentration", "reynolds", "collisions", "status",
                              "kind", "bin_lo_deg", "bin_hi_deg", "fraction", "ci95"]
 ORIENTATION_SUMMARY_COLUMNS = ["case", "shape", "size_label", "concentration", "reynolds", "collisions", "status",
-                               "kind", "mean_deg", "ci95_deg", "median_deg", "samples"]
+                               "kind", "mean_deg", "ci95_deg", "median_deg", "samples", "flags"]
 PACKING_COLUMNS = ["case", "shape", "size_label", "concentration_target", "concentration_achieved", "status",
                    "message"]
 RUNTIME_COLUMNS = ["case", "status", "steps", "simulated_s", "wall_s", "s_per_step", "mlups", "particles",
@@ -92,65 +103,18 @@ def batch_means(series: np.ndarray, n_batches: int = 10, confidence: float = 0.9
     return mean, hw, b
 
 
-def integrated_autocorrelation_time(series: np.ndarray, dt: float = 1.0, c: float = 5.0) -> float:
-    """Integrated autocorrelation time ``tau_int = dt (1/2 + sum_{k>=1} rho_k)`` of a series
-    sampled every ``dt``, the discrete form of ``int_0^inf rho(t) dt`` (an exponential
-    ``rho = exp(-t/T)`` gives ``T``; white noise gives ``dt/2``). Then the variance of the mean
-    of ``n`` samples is ``2 tau_int / (n dt)`` times the variance of one sample.
-
-    The sum is cut at Sokal's self-consistent window: the smallest ``M`` with
-    ``M >= c * tau_int(M) / dt``, which keeps the noise of the long-lag tail out. NaN for fewer
-    than 4 samples or a constant series.
-    """
-    x = np.asarray(series, dtype=float).ravel()
-    x = x[np.isfinite(x)]
-    n = x.size
-    if n < 4:
-        return _NAN
-    y = x - x.mean()
-    var = float(np.dot(y, y)) / n
-    if var <= 0.0:
-        return _NAN
-    nfft = 1 << int(math.ceil(math.log2(2 * n)))
-    f = np.fft.rfft(y, nfft)
-    acf = np.fft.irfft(f * np.conj(f), nfft)[:n] / (n * var)  # biased estimator, rho_0 = 1
-    tau = 0.5 + np.cumsum(acf[1:])  # tau(M) in samples for M = 1 .. n-1
-    ok = np.nonzero(np.arange(1, n) >= c * tau)[0]
-    t = tau[ok[0]] if ok.size else tau[-1]
-    return float(max(t, 0.5) * dt)
-
-
 # ----------------------------------------------------------------------------------------------
 # orientation
 
-def rotation_matrices(q: np.ndarray) -> np.ndarray:
-    """Rotation matrices ``A`` (N, 3, 3), body -> lab (Eq. (20)), of unit quaternions
-    ``q = (w, x, y, z)`` (N, 4); same convention as ``lbmpipe.particles.rigid.quat_to_matrix``."""
-    q = np.asarray(q, dtype=float).reshape(-1, 4)
-    q = q / np.linalg.norm(q, axis=1, keepdims=True)
-    w, x, y, z = q.T
-    a = np.empty((q.shape[0], 3, 3))
-    a[:, 0, 0] = 1 - 2 * (y * y + z * z)
-    a[:, 0, 1] = 2 * (x * y - w * z)
-    a[:, 0, 2] = 2 * (x * z + w * y)
-    a[:, 1, 0] = 2 * (x * y + w * z)
-    a[:, 1, 1] = 1 - 2 * (x * x + z * z)
-    a[:, 1, 2] = 2 * (y * z - w * x)
-    a[:, 2, 0] = 2 * (x * z - w * y)
-    a[:, 2, 1] = 2 * (y * z + w * x)
-    a[:, 2, 2] = 1 - 2 * (x * x + y * y)
-    return a
-
-
 def cylinder_axis_angle(q: np.ndarray) -> np.ndarray:
     """Angle (deg, 0-90) between the cylinder axis (body z) and the pipe axis (lab z)."""
-    a = rotation_matrices(q)
+    a = rotation_matrices(np.reshape(q, (-1, 4)))
     return np.degrees(np.arccos(np.clip(np.abs(a[:, 2, 2]), 0.0, 1.0)))
 
 
 def cube_axis_angle(q: np.ndarray) -> np.ndarray:
     """3-D angle (deg, 0-54.74) between the pipe axis and the nearest cube axis."""
-    a = rotation_matrices(q)
+    a = rotation_matrices(np.reshape(q, (-1, 4)))
     return np.degrees(np.arccos(np.clip(np.abs(a[:, 2, :]).max(axis=1), 0.0, 1.0)))
 
 
@@ -158,7 +122,7 @@ def cube_projected_angle(q: np.ndarray) -> np.ndarray:
     """In-image angle (deg, 0-45) of a cube seen by a camera looking along lab y: the body axis
     with the longest projection on the x-z plane, its angle to the pipe axis folded by the
     square's symmetry (module docstring gives the exact definition)."""
-    a = rotation_matrices(q)
+    a = rotation_matrices(np.reshape(q, (-1, 4)))
     px, pz = a[:, 0, :], a[:, 2, :]  # (N, 3): projections of the three body axes
     k = np.argmax(px * px + pz * pz, axis=1)
     i = np.arange(a.shape[0])
@@ -263,8 +227,10 @@ def _load_samples(case_dir: Path, spinup_s: float) -> tuple[pd.DataFrame, int]:
             fixed = st["fixed"].astype(str).str.lower().isin(("true", "1", "1.0"))
             df = df[~df["id"].isin(st.loc[fixed, "id"])]
     # a sample written exactly at the end of spin-up belongs to spin-up; allow for round-off in t
-    tol = 1e-9 * max(1.0, abs(spinup_s))
-    df = df[df["t_s"] > spinup_s + tol].sort_values(["t_s", "id"], kind="stable")
+    if math.isfinite(spinup_s):
+        tol = 1e-9 * max(1.0, abs(spinup_s))
+        df = df[df["t_s"] > spinup_s + tol]
+    df = df.sort_values(["t_s", "id"], kind="stable")
     return df, int(df["t_s"].nunique())
 
 
@@ -282,62 +248,210 @@ def _nan_axes() -> dict:
     return {a: _NAN for a in AXES}
 
 
+#: the keys of a :func:`lbmpipe.reproduction.steady.mean_interval` dict kept in ``stats.json``
+_INTERVAL_KEYS = ("method", "batch_s", "n_batches", "dof", "tau_int_s", "tau_status", "sufficient", "required_s",
+                  "duration_s", "message")
+PROFILE_OBSERVABLE = ("not available: profile.csv is a time average after the run's spin-up and no per-sample "
+                      "flow-profile scalar is written, so the spin-up test cannot use the flow profile")
+
+
+def _interval(series, dt: float, tau_s: float | None = None) -> dict:
+    """:func:`lbmpipe.reproduction.steady.mean_interval` of a series (batches of >= 5 tau_int, >= 20
+    of them, or overlapping batch means flagged with the duration needed), JSON-sized."""
+    r = mean_interval(series, dt, tau_s=tau_s)
+    return {"mean": r["mean"], "ci95": r["ci95"], **{k: r[k] for k in _INTERVAL_KEYS}}
+
+
+def pipe_viscous_time_s(summary: dict) -> float:
+    """``R^2/nu`` (s) of a case from its ``summary.json``: the pipe diameter of its scene, ``nu`` from
+    the scene's fluid (or the lattice's ``nu_lu dx^2/dt``). NaN when the summary lacks them."""
+    scene = summary.get("scene") or {}
+    d = (scene.get("domain") or {}).get("diameter_mm")
+    nu = (scene.get("fluid") or {}).get("viscosity_m2_s")
+    lat = summary.get("lattice") or {}
+    units = lat.get("units") or {}
+    if nu is None and lat.get("nu_lu") is not None and units.get("dx_m") and units.get("dt_s"):
+        nu = float(lat["nu_lu"]) * float(units["dx_m"]) ** 2 / float(units["dt_s"])
+    return viscous_time_s(float(d), float(nu)) if d and nu else _NAN
+
+
+def _body_arrays(df: pd.DataFrame, cols: list[str]) -> tuple[np.ndarray, np.ndarray]:
+    """Sample times (n_t,) and ``cols`` per body (n_t, n_b, len(cols)) of the bodies present in
+    every sample."""
+    times = np.unique(df["t_s"].to_numpy())
+    counts = df.groupby("id")["t_s"].nunique()
+    ids = counts.index[counts.to_numpy() == times.size]
+    d = df[df["id"].isin(ids)].sort_values(["t_s", "id"], kind="stable")
+    return times, d[cols].to_numpy(float).reshape(times.size, ids.size, len(cols))
+
+
+def _force_series(case_dir: Path, t: np.ndarray) -> np.ndarray | None:
+    """The driving force density (``flow_rate.csv``) at the particle sample times ``t``, or None."""
+    fr = H.read_flow_rate(case_dir)
+    if fr is None or "force_density_N_m3" not in fr or fr.empty:
+        return None
+    key = pd.Series(fr["force_density_N_m3"].to_numpy(float), index=np.round(fr["t_s"].to_numpy(float), 9))
+    key = key[~key.index.duplicated()]
+    out = key.reindex(np.round(t, 9)).to_numpy()
+    return out if np.all(np.isfinite(out)) else None
+
+
+def detect_spinup(t: np.ndarray, observables: dict, summary: dict, min_viscous_times: float) -> dict:
+    """Spin-up of a run: :func:`lbmpipe.reproduction.steady.spinup_end` (MSER-5 on every observable,
+    the latest, halves of the kept window compared) never before ``min_viscous_times`` ``R^2/nu``
+    nor before the run's own ``spinup_s``. A run that ends before that minimum keeps its own
+    spin-up for the statistics, with ``steady`` False and ``required_s`` the spin-up it needed."""
+    tv = pipe_viscous_time_s(summary)
+    own = float(summary.get("spinup_s") or 0.0)
+    floor = max(own, min_viscous_times * tv) if np.isfinite(tv) else own
+    base = {"viscous_time_s": tv, "min_viscous_times": float(min_viscous_times), "required_s": floor,
+            "profile_observable": PROFILE_OBSERVABLE}
+    if np.count_nonzero(t > floor + 1e-9 * max(1.0, floor)) < 4:
+        return {**base, "method": "run shorter than the required spin-up", "spinup_s": own, "steady": False,
+                "limited_by": "run length", "observables": {},
+                "message": (f"the run ends at {t[-1]:.3g} s, before the required spin-up {floor:.3g} s "
+                            f"({min_viscous_times:g} R^2/nu = {min_viscous_times * tv:.3g} s): statistics after the "
+                            f"run's own spin-up {own:.3g} s, not of a steady state")}
+    return {**base, **spinup_end(t, observables, floor)}
+
+
+def _frozen(q_all: np.ndarray, dt: float, shape: str, threshold: float) -> dict:
+    """:func:`lbmpipe.reproduction.steady.orientation_memory` from the first sample (the packing):
+    fraction of the orientation autocorrelation left at the end, frozen beyond ``threshold``."""
+    m = orientation_memory(q_all, dt, shape, frozen_threshold=threshold)
+    return {"remaining": m["remaining"], "threshold": m["frozen_threshold"], "frozen": m["frozen"],
+            "duration_s": q_all.shape[0] * dt}
+
+
+def _locked(x: np.ndarray, q: np.ndarray, meta: dict, summary: dict, diag: dict) -> dict:
+    """:func:`lbmpipe.reproduction.steady.locking_diagnostics` over the whole run (column, no
+    passing, cannot sit side by side); not computed without the scene's pipe in the summary."""
+    dom = (summary.get("scene") or {}).get("domain") or {}
+    if not dom.get("diameter_mm") or not dom.get("length_mm") or x.shape[1] < 2:
+        return {"locked": False, "message": "not computed: no pipe in summary.json or fewer than 2 bodies"}
+    size = ({"edge_mm": meta["edge_mm"]} if meta["shape"] == "cube"
+            else {"diameter_mm": meta["diameter_mm"], "length_mm": meta["length_mm"]})
+    return locking_diagnostics(x, q, meta["shape"], float(dom["diameter_mm"]), float(dom["length_mm"]),
+                               k_neighbours=int(diag["k_neighbours"]),
+                               retained_locked=float(diag["locked_neighbours_retained"]), **size)
+
+
+def resolution(meta: dict, summary: dict) -> dict:
+    """Smallest particle dimension in lattice spacings (a measured fact of the case's lattice)."""
+    dx = ((summary.get("scene") or {}).get("numerics") or {}).get("dx_mm")
+    dims = [meta[k] for k in ("diameter_mm", "length_mm", "edge_mm") if np.isfinite(meta[k])]
+    smallest = min(dims) if dims else _NAN
+    return {"dx_mm": _num(dx), "smallest_dimension_mm": smallest,
+            "lattice_spacings": smallest / float(dx) if dx and dims else _NAN}
+
+
+def _base_stats(case: str, meta: dict, status: str, summary: dict, spinup_s: float) -> dict:
+    parts = summary.get("particles") or {}
+    return {"case": case, "status": status, "shape": meta["shape"], "size_label": meta["size_label"],
+            "reynolds": meta["reynolds"], "concentration": meta["concentration"], "collisions": meta["collisions"],
+            "n_particles": int(parts.get("count", 0) or 0), "spinup_s": spinup_s, "samples": 0,
+            "mean_abs_omega_rad_s": _nan_axes(), "ci95_rad_s": _nan_axes(), "n_batches": 0,
+            "tau_int_s": _nan_axes(), "orientation": {}}
+
+
 def case_statistics(case: str, case_dir: Path, case_cfg: dict, spinup_s: float | None = None,
-                    n_batches: int = 10) -> dict:
+                    config: dict | None = None) -> dict:
     """The ``stats.json`` dict of the contract for one case directory.
 
-    ``mean_abs_omega_rad_s[a]``: mean of ``|Omega_a|`` (lab frame) over free particles and
-    samples with ``t > spinup_s``; ``ci95_rad_s[a]``: batch-means 95 % half-width (Student t) of
-    the particle-averaged series; ``tau_int_s[a]``: its integrated autocorrelation time.
-    ``spinup_s`` defaults to ``summary.json``'s. NaN statistics when the status is not
-    ``completed`` or no sample lies after spin-up. An extra key ``orientation`` holds, per
-    orientation kind, ``{mean_deg, ci95_deg, median_deg}`` (used by :func:`aggregate`).
+    Spin-up (``spinup``, ``spinup_s``): :func:`detect_spinup` on the driving force density
+    (``flow_rate.csv``), the particle-mean ``|Omega_a|`` per axis and the orientation order
+    parameter (:func:`lbmpipe.reproduction.steady.orientation_order`), never shorter than
+    ``diagnostics.min_spinup_viscous_times`` ``R^2/nu``; a given ``spinup_s`` replaces the test.
+    ``mean_abs_omega_rad_s[a]``: mean of ``|Omega_a|`` (lab frame) over free particles and samples
+    after spin-up; ``ci95_rad_s[a]``, ``tau_int_s[a]``, ``omega_intervals[a]``: its
+    :func:`lbmpipe.reproduction.steady.mean_interval` (own ``tau_int``). ``orientation[kind]``:
+    ``{mean_deg, ci95_deg, median_deg, interval}``, and ``orientation_order``, with intervals
+    designed on the orientation correlation time (``orientation_memory``). Diagnostics: ``frozen``,
+    ``locked``, ``health`` (:func:`lbmpipe.reproduction.health.run_health`), ``resolution`` and
+    ``flags``. NaN statistics when the status is not ``completed`` or no sample lies after spin-up.
     """
     case_dir = Path(case_dir)
+    diag = H.thresholds(config)
     meta = case_metadata(case, case_cfg)
     summary = _read_json(case_dir / "summary.json")
     status = summary.get("status", "unknown") if summary else "not run"
-    if spinup_s is None:
-        spinup_s = float(summary.get("spinup_s", 0.0)) if summary else _NAN
-    parts = (summary or {}).get("particles") or {}
-    out = {"case": case, "status": status, "shape": meta["shape"], "size_label": meta["size_label"],
-           "reynolds": meta["reynolds"], "concentration": meta["concentration"], "collisions": meta["collisions"],
-           "n_particles": int(parts.get("count", 0) or 0), "spinup_s": spinup_s, "samples": 0,
-           "mean_abs_omega_rad_s": _nan_axes(), "ci95_rad_s": _nan_axes(), "n_batches": 0,
-           "tau_int_s": _nan_axes(), "orientation": {}}
+    s = summary or {}
+    out = _base_stats(case, meta, status, s, float(spinup_s) if spinup_s is not None
+                      else float(s.get("spinup_s", 0.0)) if summary else _NAN)
+    out["health"] = H.run_health(summary, H.read_flow_rate(case_dir), diag["health"])
+    out["resolution"] = resolution(meta, s)
+    out["flags"] = H.case_flags(out)
     if status != "completed" or meta["shape"] not in ORIENTATION_KINDS:
         return out
-    df, n_samples = _load_samples(case_dir, float(spinup_s))
-    out["samples"] = n_samples
-    if n_samples == 0:
+    df, n_all = _load_samples(case_dir, -math.inf)
+    if n_all == 0:
         return out
-    out["n_particles"] = int(df["id"].nunique())
-    dt = _sample_interval(df)
-    for a in AXES:
-        series = _per_sample(df, np.abs(df[f"w{a}_rad_s"].to_numpy()))
-        mean, hw, b = batch_means(series, n_batches)
-        out["mean_abs_omega_rad_s"][a] = mean
-        out["ci95_rad_s"][a] = hw
-        out["n_batches"] = b
-        out["tau_int_s"][a] = integrated_autocorrelation_time(series, dt if np.isfinite(dt) else 1.0)
-    q = df[["qw", "qx", "qy", "qz"]].to_numpy()
-    for kind, _, _ in ORIENTATION_KINDS[meta["shape"]]:
-        ang = orientation_angles(kind, q)
-        mean, hw, _ = batch_means(_per_sample(df, ang), n_batches)
-        out["orientation"][kind] = {"mean_deg": mean, "ci95_deg": hw, "median_deg": float(np.median(ang))}
+    _particle_statistics(out, df, case_dir, meta, s, diag, spinup_s)
+    out["flags"] = H.case_flags(out)
     return out
 
 
-def orientation_histograms(case_dir: Path, shape: str, spinup_s: float, n_batches: int = 10,
-                           status: str = "completed") -> pd.DataFrame:
+def _particle_statistics(out: dict, df: pd.DataFrame, case_dir: Path, meta: dict, summary: dict, diag: dict,
+                         spinup_s: float | None) -> None:
+    """Fill ``out`` with the spin-up, the intervals and the diagnostics of a completed particle case."""
+    shape = meta["shape"]
+    t, arr = _body_arrays(df, ["x_mm", "y_mm", "z_mm", "qw", "qx", "qy", "qz",
+                               "wx_rad_s", "wy_rad_s", "wz_rad_s"])
+    x, q, w = arr[..., :3], arr[..., 3:7], np.abs(arr[..., 7:])
+    dt = float(np.median(np.diff(t))) if t.size > 1 else 1.0
+    out["frozen"] = _frozen(q, dt, shape, float(diag["frozen_remaining"]))
+    out["locked"] = _locked(x, q, meta, summary, diag)
+    obs = {f"mean_abs_omega_{a}": w[..., k].mean(axis=1) for k, a in enumerate(AXES)}
+    obs["orientation_order"] = orientation_order(q, shape)
+    force = _force_series(case_dir, t)
+    if force is not None:
+        obs = {"force_density": force, **obs}
+    if spinup_s is None:
+        out["spinup"] = detect_spinup(t, obs, summary, float(diag["min_spinup_viscous_times"]))
+        out["spinup_s"] = float(out["spinup"]["spinup_s"])
+    else:
+        out["spinup"] = {"method": "given", "spinup_s": float(spinup_s)}
+    tol = 1e-9 * max(1.0, abs(out["spinup_s"]))
+    keep = t > out["spinup_s"] + tol
+    sel = df[df["t_s"] > out["spinup_s"] + tol]
+    out["samples"] = int(keep.sum())
+    if not keep.any():
+        return
+    out["n_particles"] = int(sel["id"].nunique())
+    out["omega_intervals"] = {}
+    for a in AXES:
+        r = _interval(obs[f"mean_abs_omega_{a}"][keep], dt)
+        out["mean_abs_omega_rad_s"][a] = float(np.abs(sel[f"w{a}_rad_s"].to_numpy()).mean())
+        out["ci95_rad_s"][a] = r["ci95"]
+        out["tau_int_s"][a] = r["tau_int_s"]
+        out["omega_intervals"][a] = r
+    out["n_batches"] = int(min(r["n_batches"] for r in out["omega_intervals"].values()))
+    mem = orientation_memory(q[keep], dt, shape) if keep.sum() >= 4 else {"tau_orient_s": _NAN, "tau_status":
+                                                                           "undefined", "e_fold_s": _NAN}
+    tau_o = mem["tau_orient_s"]
+    out["orientation_memory"] = {k: mem[k] for k in ("tau_orient_s", "tau_status", "e_fold_s")}
+    out["orientation_order"] = _interval(obs["orientation_order"][keep], dt, tau_s=tau_o)
+    qs = sel[["qw", "qx", "qy", "qz"]].to_numpy()
+    for kind, _, _ in ORIENTATION_KINDS[shape]:
+        ang = orientation_angles(kind, qs)
+        r = _interval(_per_sample(sel, ang), dt, tau_s=tau_o)
+        out["orientation"][kind] = {"mean_deg": r["mean"], "ci95_deg": r["ci95"], "median_deg": float(np.median(ang)),
+                                    "interval": r}
+
+
+def orientation_histograms(case_dir: Path, shape: str, spinup_s: float, status: str = "completed",
+                           tau_s: float | None = None) -> pd.DataFrame:
     """``orientation.csv`` rows (``kind, bin_lo_deg, bin_hi_deg, fraction, ci95``) of one case.
 
-    ``fraction``: share of (particle, sample) pairs after spin-up in the bin; ``ci95``: batch-
-    means 95 % half-width of the per-sample fraction of the particles in the bin. The bins are
-    laid out (with NaN values) even for a case with no samples, so tables keep their shape.
+    ``fraction``: share of (particle, sample) pairs after spin-up in the bin; ``ci95``:
+    :func:`lbmpipe.reproduction.steady.mean_interval` half-width of the per-sample fraction of the
+    particles in the bin, its batches designed on ``tau_s`` (the orientation correlation time of
+    ``stats.json``'s ``orientation_memory``) when that exceeds the bin series' own ``tau_int``.
+    The bins are laid out (with NaN values) even for a case with no samples, so tables keep their shape.
     """
     kinds = ORIENTATION_KINDS.get(shape, ())
     df, n = _load_samples(case_dir, spinup_s) if status == "completed" else (pd.DataFrame(), 0)
+    dt = _sample_interval(df) if n else _NAN
     rows = []
     for kind, hi, nb in kinds:
         edges = np.linspace(0.0, hi, nb + 1)
@@ -348,7 +462,8 @@ def orientation_histograms(case_dir: Path, shape: str, spinup_s: float, n_batche
             onehot[np.arange(ang.size), idx] = 1.0
             per_t = pd.DataFrame(onehot, index=df.index).groupby(df["t_s"].to_numpy()).mean().to_numpy()
             frac = onehot.mean(axis=0)
-            ci = np.array([batch_means(per_t[:, j], n_batches)[1] for j in range(nb)])
+            step = dt if np.isfinite(dt) else 1.0
+            ci = np.array([mean_interval(per_t[:, j], step, tau_s=tau_s)["ci95"] for j in range(nb)])
         else:
             frac = np.full(nb, _NAN)
             ci = np.full(nb, _NAN)
@@ -360,6 +475,8 @@ def orientation_histograms(case_dir: Path, shape: str, spinup_s: float, n_batche
 def _jsonable(obj):
     if isinstance(obj, dict):
         return {k: _jsonable(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_jsonable(v) for v in obj]
     if isinstance(obj, float) and not math.isfinite(obj):
         return None  # strict JSON has no NaN; readers map null back to NaN
     if isinstance(obj, np.generic):
@@ -367,14 +484,15 @@ def _jsonable(obj):
     return obj
 
 
-def write_case_outputs(case: str, case_dir: Path, case_cfg: dict) -> None:
+def write_case_outputs(case: str, case_dir: Path, case_cfg: dict, config: dict | None = None) -> None:
     """Write ``stats.json`` and ``orientation.csv`` beside the case files (NaN written as JSON
-    ``null`` in ``stats.json``)."""
+    ``null`` in ``stats.json``); ``config`` the pipeline config (its ``diagnostics`` thresholds)."""
     case_dir = Path(case_dir)
-    s = case_statistics(case, case_dir, case_cfg)
+    s = case_statistics(case, case_dir, case_cfg, config=config)
     (case_dir / "stats.json").write_text(json.dumps(_jsonable(s), indent=2) + "\n")
     spin = s["spinup_s"] if s["spinup_s"] is not None and np.isfinite(s["spinup_s"]) else 0.0
-    orientation_histograms(case_dir, s["shape"], spin, status=s["status"]).to_csv(
+    tau_o = (s.get("orientation_memory") or {}).get("tau_orient_s")
+    orientation_histograms(case_dir, s["shape"], spin, status=s["status"], tau_s=tau_o).to_csv(
         case_dir / "orientation.csv", index=False)
 
 
@@ -400,8 +518,9 @@ def _case_orientation(case_dir: Path, shape: str, stats: dict) -> pd.DataFrame:
         if not df.empty:
             return df
     spin = _num(stats.get("spinup_s"))
+    tau_o = _num((stats.get("orientation_memory") or {}).get("tau_orient_s"))
     return orientation_histograms(case_dir, shape, spin if np.isfinite(spin) else 0.0,
-                                  status=stats.get("status", "not run"))
+                                  status=stats.get("status", "not run"), tau_s=tau_o if np.isfinite(tau_o) else None)
 
 
 def aggregate(fid_dir: Path, cases: dict) -> None:
@@ -435,10 +554,12 @@ def aggregate(fid_dir: Path, cases: dict) -> None:
         if target is None:
             target = meta["concentration"]
         om, ci = s.get("mean_abs_omega_rad_s") or {}, s.get("ci95_rad_s") or {}
+        flags = ";".join(s.get("flags") or [])
         av.append({**meta, "status": status, "concentration_achieved": _num(achieved),
                    "n_particles": int(s.get("n_particles") or parts.get("count") or 0),
                    "samples": int(s.get("samples") or 0),
-                   **{f"omega_{a}": _num(om.get(a)) for a in AXES}, **{f"ci_{a}": _num(ci.get(a)) for a in AXES}})
+                   **{f"omega_{a}": _num(om.get(a)) for a in AXES}, **{f"ci_{a}": _num(ci.get(a)) for a in AXES},
+                   "flags": flags})
         short = {k: meta[k] for k in ("case", "shape", "size_label", "concentration", "reynolds", "collisions")}
         h = _case_orientation(cdir, meta["shape"], {**s, "status": status})
         for _, r in h.iterrows():
@@ -448,7 +569,7 @@ def aggregate(fid_dir: Path, cases: dict) -> None:
             o = so.get(kind) or {}
             osum.append({**short, "status": status, "kind": kind, "mean_deg": _num(o.get("mean_deg")),
                          "ci95_deg": _num(o.get("ci95_deg")), "median_deg": _num(o.get("median_deg")),
-                         "samples": int(s.get("samples") or 0)})
+                         "samples": int(s.get("samples") or 0), "flags": flags})
         msg = summary.get("message") or packing.get("message") or ("" if summary else "not run: no summary.json")
         pack.append({"case": case, "shape": meta["shape"], "size_label": meta["size_label"],
                      "concentration_target": _num(target), "concentration_achieved": _num(achieved),

@@ -2,11 +2,12 @@
 
 FIGURES = ["fig4_cylinders_re26", "fig5_cubes8_concentration", "fig6_cubes24_reynolds", "fig7a_shape_re9.4",
            "fig7b_shape_re26", "fig8_cylinder_orientation", "fig9_cube_orientation", "fig10_profiles"]
-TABLES = ["angular_velocity", "orientation", "orientation_summary", "packing", "runtime"]
+TABLES = ["angular_velocity", "orientation", "orientation_summary", "packing", "run_health", "runtime"]
 
 
 rule statistics:
-    """Mean |Omega| about x, y, z with batch-means confidence intervals, orientation histograms."""
+    """Spin-up found (MSER-5, >= two viscous times), mean |Omega| about x, y, z and orientation statistics
+    with valid batch-means intervals, orientation histograms, diagnostics (frozen, locked, run health)."""
     localrule: True
     conda:
         "../envs/lbmpipe.yaml"
@@ -14,6 +15,7 @@ rule statistics:
         summary="results/{fidelity}/cases/{case}/summary.json",
         particles="results/{fidelity}/cases/{case}/particles.parquet",
         static="results/{fidelity}/cases/{case}/particles_static.csv",
+        flow_rate="results/{fidelity}/cases/{case}/flow_rate.csv",
     output:
         stats="results/{fidelity}/cases/{case}/stats.json",
         orientation="results/{fidelity}/cases/{case}/orientation.csv",
@@ -22,7 +24,7 @@ rule statistics:
     log:
         "results/{fidelity}/logs/{case}.statistics.log",
     run:
-        write_case_outputs(wildcards.case, Path(output.stats).parent, config["cases"][wildcards.case])
+        write_case_outputs(wildcards.case, Path(output.stats).parent, config["cases"][wildcards.case], config)
 
 
 rule tables:

@@ -13,7 +13,7 @@ import yaml
 
 FIGURES = ["fig4_cylinders_re26", "fig5_cubes8_concentration", "fig6_cubes24_reynolds", "fig7a_shape_re9.4",
            "fig7b_shape_re26", "fig8_cylinder_orientation", "fig9_cube_orientation", "fig10_profiles"]
-TABLES = ["angular_velocity", "orientation", "orientation_summary", "packing", "runtime"]
+TABLES = ["angular_velocity", "orientation", "orientation_summary", "packing", "run_health", "runtime"]
 
 fidelity = sys.argv[1]
 config = yaml.safe_load(Path("config.yaml").read_text())
@@ -49,7 +49,7 @@ for fig in FIGURES:
 for table in TABLES:
     if need(root / "tables" / f"{table}.csv"):
         df = pd.read_csv(root / "tables" / f"{table}.csv")
-        expected = set(particle_cases) if table != "runtime" else set(cases)
+        expected = set(particle_cases) if table not in ("runtime", "run_health") else set(cases)
         missing = expected - set(df["case"])
         if missing:
             problems.append(f"tables/{table}.csv lacks {sorted(missing)}")
