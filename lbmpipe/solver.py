@@ -395,6 +395,11 @@ class ParticleSamples(Reporter):
                 "rho_min": floor["rho_min"], "mass_added_rel": floor["mass_added"] / max(mass0, 1e-300),
                 "node_updates": int(floor["node_updates"]),
                 "node_updates_per_step": floor["node_updates"] / max(sim.step_count, 1)}
+        mc = records.get("mass_correction")
+        if mc is not None:
+            # the mass the correction added in total (net, signed), relative to the initial mass
+            summary["mass_correction"] = {"mass_added_rel": mc["mass_added"] / max(mass0, 1e-300),
+                                          "calls": int(mc["calls"])}
         summary["collisions"] = records.get("collisions") or {
             "enabled": False, "reason": "switched off by the scene" if not scene.particles.collisions.enabled
             else "no free particles"}
