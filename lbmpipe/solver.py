@@ -377,11 +377,18 @@ class ParticleSamples(Reporter):
         self.recorder.sample(sim.step_count)
         return None
 
-    def write(self, out_dir, summary, files, scene, sim, mass0) -> None:
+    def write(self, out_dir, summary, files, scene, sim, mass0, n_fluid0=float("nan")) -> None:
         from .particles import placement
 
         ps, grid = sim.particles, sim.grid
         records = sim.records()
+        # Moving bodies cover and uncover nodes, so the fluid's total mass follows its volume (bodies
+        # free to overlap, collisions off, cover fewer nodes): the mean density per fluid node is
+        # what a leak would change; both are reported
+        mass1, n1 = sim.mass(), float(ps.n_fluid)
+        summary["fluid_nodes_change_rel"] = n1 / n_fluid0 - 1.0 if n_fluid0 > 0 else float("nan")
+        summary["density_drift_rel"] = ((mass1 / n1) / (mass0 / n_fluid0) - 1.0
+                                        if n_fluid0 > 0 and n1 > 0 else float("nan"))
         summary["particles"] = {
             "count": ps.n, "fixed": int(len(ps.fixed_ids)),
             "volume_fraction": float(ps.vol.sum() / max(float(np.count_nonzero(grid.fluid)), 1.0)),
@@ -523,6 +530,7 @@ class CheckpointWriter(Reporter):
         st = self.run
         self.resumed_from = sim.step_count
         st.mass0, st.profile.n_avg, st.wall_before = float(run["mass0"]), int(run["n_avg"]), float(run["wall_seconds"])
+        st.n_fluid0 = float(run.get("n_fluid0", float("nan")))  # NaN: a checkpoint written before it was kept
         st.profile.uz_sum[...] = arrs["uz_sum"]
         st.profile.uz_cnt[...] = arrs["uz_cnt"]
         st.flow.rows = [(int(r[0]), float(r[1]), float(r[2]), float(r[3])) for r in arrs["series"]]
@@ -542,7 +550,8 @@ class CheckpointWriter(Reporter):
         rec = st.particles.recorder if st.particles is not None else None
         rows = np.concatenate(rec.rows) if rec is not None and rec.rows else np.zeros((0, 0))
         ckpt.write(self.path, sim, self.fingerprint,
-                   run={"mass0": st.mass0, "n_avg": st.profile.n_avg, "wall_seconds": st.wall()},
+                   run={"mass0": st.mass0, "n_avg": st.profile.n_avg, "wall_seconds": st.wall(),
+                        "n_fluid0": st.n_fluid0},
                    run_arrays={"uz_sum": st.profile.uz_sum, "uz_cnt": st.profile.uz_cnt,
                                "series": np.array(st.flow.rows, dtype=np.float64).reshape(-1, 4),
                                "particle_rows": rows,
@@ -582,6 +591,7 @@ class _RunState:
     particles: ParticleSamples | None
     mass0: float
     planes: PlaneSamples | None = None
+    n_fluid0: float = float("nan")  # fluid nodes at the start (particle scenes: bodies cover and uncover nodes)
     wall_before: float = 0.0
     t0: float = 0.0
 
@@ -641,7 +651,8 @@ def _run_scene(scene, params, out_dir, progress, max_steps, checkpoint, checkpoi
     planes = PlaneProfile.for_grid(grid)  # a box's profile across its walls
     run = _RunState(flow=FlowRateSeries(), profile=profile,
                     particles=ParticleSamples(sim, units) if sim.particles is not None else None, mass0=sim.mass(),
-                    planes=PlaneSamples(planes, spinup) if planes is not None else None)
+                    planes=PlaneSamples(planes, spinup) if planes is not None else None,
+                    n_fluid0=float(sim.particles.n_fluid) if sim.particles is not None else float("nan"))
     field_writer = FieldWriter.from_scene(scene, params, grid, out_dir, n_steps)
     writer = CheckpointWriter(checkpoint, scene, checkpoint_every_s, keep_checkpoint, run) if checkpoint else None
     if not (writer is not None and writer.resume(sim)) and run.particles is not None:
@@ -689,7 +700,7 @@ def _run_scene(scene, params, out_dir, progress, max_steps, checkpoint, checkpoi
         summary["checkpoint"] = writer.record(status)
     run.flow.write(out_dir, summary, files, scene, units)
     if run.particles is not None:
-        run.particles.write(out_dir, summary, files, scene, sim, mass0)
+        run.particles.write(out_dir, summary, files, scene, sim, mass0, run.n_fluid0)
     profile.write(out_dir, summary, files, scene, params, run.flow.rows)
     if fields is not None:
         files.update(dict.fromkeys(field_writer.close(), True))

@@ -155,6 +155,8 @@ def test_run_with_particles_writes_the_documented_outputs(tmp_path):
     # mass (coupling module docstring: moving particles change the fluid mass), a small fraction
     mc = summary["mass_correction"]
     assert mc["calls"] >= 1 and abs(mc["mass_added_rel"]) < 0.05
+    # mass per fluid node: the correction holds the mean fluid density
+    assert abs(summary["density_drift_rel"]) < 1e-3 and np.isfinite(summary["fluid_nodes_change_rel"])
 
 
 def test_demo_scene_loads_and_places_its_particles():

@@ -366,6 +366,18 @@ def test_mass_drift_beyond_its_threshold_makes_the_case_unhealthy(tmp_path):
     assert "unhealthy" not in S.case_statistics("c", tmp_path / "ok" / "c", CYL_CFG)["flags"]
 
 
+def test_a_fluid_volume_change_without_a_density_drift_is_healthy(tmp_path):
+    # collisions off: overlapping bodies cover fewer nodes, the total fluid mass grows by 4.85 %
+    # with the mean density per fluid node unchanged to 4e-4: not a leak
+    _long_case(tmp_path, summary_extra={"mass_drift_rel": 0.0485, "density_drift_rel": 3.8e-4,
+                                        "fluid_nodes_change_rel": 0.0484})
+    s = S.case_statistics("c", tmp_path / "c", CYL_CFG)
+    assert s["health"]["mass_drift_rel"] == pytest.approx(3.8e-4)
+    assert not any(i.startswith("mass drift") for i in s["health"]["issues"])
+    _long_case(tmp_path / "leak", summary_extra={"mass_drift_rel": 0.0485, "density_drift_rel": 0.0485})
+    assert "unhealthy" in S.case_statistics("c", tmp_path / "leak" / "c", CYL_CFG)["flags"]
+
+
 def test_run_health_table_has_a_row_per_case_and_flags_the_one_beyond_a_threshold(tmp_path):
     fid = tmp_path / "lvl"
     _long_case(fid / "cases", summary_extra={"mass_drift_rel": 0.05})

@@ -8,7 +8,10 @@ Run health of a case (:func:`run_health`), from its ``summary.json`` and ``flow_
 
 - ``status``: the run's status (anything but ``completed`` is unhealthy);
 - ``mass_floor_rel``: mass added by the density floor, relative to the initial mass;
-- ``mass_drift_rel``: the run's relative mass drift;
+- ``mass_drift_rel``: the run's relative drift of the mean fluid density (mass per fluid node,
+  ``summary.json``'s ``density_drift_rel``; without particles, or in a summary that predates it,
+  the drift of the total mass): with particles the total mass follows the fluid's volume, which
+  bodies free to overlap (collisions off) change by several per cent without any leak;
 - ``mass_corrected_rel``: mass renormalised in total by the particles' mass correction, relative
   (NaN when the summary does not record it);
 - ``density_deviation_median``, ``density_deviation_max``: median and maximum over the samples of
@@ -127,7 +130,7 @@ def run_health(summary: dict | None, flow_rate: pd.DataFrame | None, limits: dic
     coll = s.get("collisions") or {}
     out = {"status": s.get("status", "not run") if summary else "not run",
            "mass_floor_rel": abs(_num((s.get("density_floor") or {}).get("mass_added_rel"))),
-           "mass_drift_rel": abs(_num(s.get("mass_drift_rel"))),
+           "mass_drift_rel": abs(_num(s.get("density_drift_rel", s.get("mass_drift_rel")))),
            "mass_corrected_rel": mass_corrected_rel(s),
            "mass_corrected_note": "" if "mass_correction" in s else "not recorded in summary.json",
            "density_deviation_median": med, "density_deviation_max": mx,
