@@ -69,14 +69,16 @@ def replace_atomically(path: Path, write) -> None:
 
 
 def write_flow_rate(out_dir: Path, series, units, scene) -> str:
-    """``flow_rate.csv``: sampled flow rate, driving force density and density deviation."""
-    arr = np.array(series, dtype=np.float64).reshape(-1, 4)
+    """``flow_rate.csv``: sampled flow rate, driving force density, density deviation and the
+    profile's core velocity ratio."""
+    arr = np.array(series, dtype=np.float64).reshape(-1, 5)
     df = pd.DataFrame({
         "t_s": arr[:, 0] * units.dt_s,
         "q_m3_s": [units.flow_rate_phys(v) for v in arr[:, 1]],
         # force per unit volume (N/m^3), i.e. the driving pressure gradient -dp/dz
         "force_density_N_m3": [units.force_phys(v) / units.dx_m**3 for v in arr[:, 2]],
         "max_density_deviation": arr[:, 3],
+        "core_velocity_ratio": arr[:, 4],
     })
     replace_atomically(Path(out_dir) / "flow_rate.csv", lambda tmp: df.to_csv(tmp, index=False))
     return "flow_rate.csv"

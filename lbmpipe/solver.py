@@ -343,10 +343,14 @@ class FiniteState(Reporter):
 
 class FlowRateSeries(Reporter):
     """``flow_rate.csv``: per sample the flow rate (the mixture's: fluid plus particle volume flux),
-    the driving force density and the largest density deviation."""
+    the driving force density, the largest density deviation and, in a pipe, the profile's core
+    velocity ratio (``observables.core_velocity_ratio``; NaN in a box)."""
+
+    COLUMNS = 5
 
     def __init__(self):
-        self.rows: list[tuple[int, float, float, float]] = []
+        self.rows: list[tuple[int, float, float, float, float]] = []
+        self._core = None
 
     def sample(self, sim, sample):
         rho, _, _, uz, fluid = sample.moments
@@ -354,9 +358,24 @@ class FlowRateSeries(Reporter):
         ps = sim.particles
         if ps is not None:
             jz += float(np.dot(ps.nown, ps.bodies.v[:, 2]))  # mixture: particle volume flux
-        q_lu = jz / sim.grid.shape[2]
-        self.rows.append((sim.step_count, q_lu, float(sim.force[2]), float(np.abs(rho[fluid] - 1).max())))
+        grid = sim.grid
+        q_lu = jz / grid.shape[2]
+        core = float("nan")
+        if grid.kind == "pipe":
+            if self._core is None:
+                x, y, _ = grid.positions()
+                self._core = obs.core_mask(x, y, grid.radius, grid.shape[2])
+            core = obs.core_velocity_ratio(uz, fluid, self._core)
+        self.rows.append((sim.step_count, q_lu, float(sim.force[2]), float(np.abs(rho[fluid] - 1).max()), core))
         return None
+
+    def restore(self, series: np.ndarray) -> None:
+        """Rows from a checkpoint's array (a checkpoint written before the core ratio: NaN)."""
+        a = np.asarray(series, dtype=np.float64)
+        a = a.reshape(-1, a.shape[1] if a.ndim == 2 and a.size else self.COLUMNS)
+        if a.shape[1] < self.COLUMNS:
+            a = np.hstack([a, np.full((a.shape[0], self.COLUMNS - a.shape[1]), np.nan)])
+        self.rows = [(int(r[0]), *map(float, r[1:])) for r in a]
 
     def write(self, out_dir, summary, files, scene, units) -> None:
         from . import outputs
@@ -533,7 +552,7 @@ class CheckpointWriter(Reporter):
         st.n_fluid0 = float(run.get("n_fluid0", float("nan")))  # NaN: a checkpoint written before it was kept
         st.profile.uz_sum[...] = arrs["uz_sum"]
         st.profile.uz_cnt[...] = arrs["uz_cnt"]
-        st.flow.rows = [(int(r[0]), float(r[1]), float(r[2]), float(r[3])) for r in arrs["series"]]
+        st.flow.restore(arrs["series"])
         if st.particles is not None and sim.particles.n:
             rows, n = arrs["particle_rows"], sim.particles.n
             st.particles.recorder.rows = [rows[i:i + n].copy() for i in range(0, len(rows), n)]
@@ -553,7 +572,7 @@ class CheckpointWriter(Reporter):
                    run={"mass0": st.mass0, "n_avg": st.profile.n_avg, "wall_seconds": st.wall(),
                         "n_fluid0": st.n_fluid0},
                    run_arrays={"uz_sum": st.profile.uz_sum, "uz_cnt": st.profile.uz_cnt,
-                               "series": np.array(st.flow.rows, dtype=np.float64).reshape(-1, 4),
+                               "series": np.array(st.flow.rows, dtype=np.float64).reshape(-1, st.flow.COLUMNS),
                                "particle_rows": rows,
                                **(st.planes.profile.state() if st.planes is not None else {})})
         self.written += 1

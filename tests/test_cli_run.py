@@ -53,8 +53,10 @@ def test_run_writes_documented_outputs_and_reaches_poiseuille_profile(tmp_path):
     assert list(profile.columns) == ["r_mm", "uz_m_s", "uz_poiseuille_m_s", "nodes"]
     assert profile.r_mm.max() < 25.0
     flow = pd.read_csv(out / "flow_rate.csv")
-    assert list(flow.columns) == ["t_s", "q_m3_s", "force_density_N_m3", "max_density_deviation"]
+    assert list(flow.columns) == ["t_s", "q_m3_s", "force_density_N_m3", "max_density_deviation", "core_velocity_ratio"]
     assert flow.t_s.iloc[-1] == pytest.approx(3.0)
+    # the developed profile's core velocity ratio is Hagen-Poiseuille's 1.75 (staircase wall: ~2 %)
+    assert flow.core_velocity_ratio.iloc[-1] == pytest.approx(1.75, rel=0.03)
 
 
 def test_interpolated_wall_halves_the_profile_error_of_the_staircase(tmp_path):

@@ -239,3 +239,18 @@ def test_power_of_two_box_gets_its_population_planes_in_distinct_cache_sets_and_
     assert distinct_l1_sets(plain.f) == 1
     # the nodes (not the row padding, where the sweep keeps its z-halo) hold the same bits
     np.testing.assert_array_equal(padded.f[..., :16], plain.f[..., :16])
+
+
+def test_core_velocity_ratio_is_seven_quarters_for_poiseuille_and_one_for_plug_flow():
+    from lbmpipe.fluid import observables as obs
+
+    n, radius = 64, 30.0
+    c = np.arange(n) - n / 2 + 0.5
+    X, Y = np.meshgrid(c, c, indexing="ij")
+    r2 = X**2 + Y**2
+    fluid = np.repeat((r2 < radius**2)[:, :, None], 3, axis=2)
+    core = obs.core_mask(c, c, radius, 3)
+    parabola = np.repeat(np.where(r2 < radius**2, 1.0 - r2 / radius**2, 0.0)[:, :, None], 3, axis=2)
+    assert obs.core_velocity_ratio(parabola, fluid, core) == pytest.approx(obs.CORE_RATIO_POISEUILLE, rel=0.01)
+    assert obs.CORE_RATIO_POISEUILLE == 1.75
+    assert obs.core_velocity_ratio(np.where(fluid, 0.3, 0.0), fluid, core) == pytest.approx(1.0)

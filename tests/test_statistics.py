@@ -283,7 +283,7 @@ PIPE_SCENE = {"scene": {"domain": {"diameter_mm": 50.0, "length_mm": 100.0}, "fl
               "lattice": {"nu_lu": 0.5, "units": {"dx_m": 1.0e-3, "dt_s": 1.0e-3}}}  # nu 5e-4 m^2/s: R^2/nu 1.25 s
 
 
-def _long_case(tmp_path, n=600, dt=0.02, transient_s=0.0, frozen=True, summary_extra=None, seed=3):
+def _long_case(tmp_path, n=600, dt=0.02, transient_s=0.0, frozen=True, summary_extra=None, seed=3, core=None):
     """4 cylinders, AR(1) spins about 1 rad/s (with a decaying spin-up excess lasting ``transient_s``),
     orientations fixed (frozen) or tumbling with random steps; flow_rate.csv with the driving force."""
     rng = np.random.default_rng(seed)
@@ -299,9 +299,10 @@ def _long_case(tmp_path, n=600, dt=0.02, transient_s=0.0, frozen=True, summary_e
         q /= np.linalg.norm(q, axis=-1, keepdims=True)
     write_case(tmp_path / "c", t, omega, q=q, spinup_s=0.1, summary_extra={**PIPE_SCENE, **(summary_extra or {})})
     force = 700.0 + 5.0 * rng.standard_normal(n) + (300.0 * np.exp(-t / (transient_s / 5.0)) if transient_s else 0.0)
-    pd.DataFrame({"t_s": t, "q_m3_s": 1e-4, "force_density_N_m3": force,
-                  "max_density_deviation": np.linspace(0.01, 0.05, n)}).to_csv(tmp_path / "c" / "flow_rate.csv",
-                                                                                index=False)
+    cols = {"t_s": t, "q_m3_s": 1e-4, "force_density_N_m3": force, "max_density_deviation": np.linspace(0.01, 0.05, n)}
+    if core is not None:
+        cols["core_velocity_ratio"] = core(t, rng)
+    pd.DataFrame(cols).to_csv(tmp_path / "c" / "flow_rate.csv", index=False)
     return t
 
 
@@ -332,6 +333,21 @@ def test_run_shorter_than_two_viscous_times_is_flagged_not_steady(tmp_path):
     assert s["spinup"]["steady"] is False and s["spinup_s"] == 0.1
     assert s["spinup"]["required_s"] == pytest.approx(2.5)
     assert "not steady" in s["flags"]
+
+
+def test_a_flow_profile_still_blunting_sets_the_spinup_through_the_core_velocity_ratio(tmp_path):
+    # force and spins stationary from the start; the profile's core velocity ratio relaxes from
+    # Poiseuille's 1.75 to 1.5 with a 1 s time constant: the spin-up must wait for the profile
+    def core(t, rng):
+        return 1.5 + 0.25 * np.exp(-t / 1.0) + 0.002 * rng.standard_normal(t.size)
+
+    _long_case(tmp_path, n=1200, core=core)
+    sp = S.case_statistics("c", tmp_path / "c", CYL_CFG)["spinup"]
+    assert "core_velocity_ratio" in sp["observables"] and sp["profile_observable"] == S.PROFILE_OBSERVABLE
+    assert sp["limited_by"] == "core_velocity_ratio"
+    assert sp["spinup_s"] > 3.0  # 0.25 exp(-t) falls below the noise (0.002) only after ~5 s
+    _long_case(tmp_path / "old")  # a flow_rate.csv without the column: said so
+    assert S.case_statistics("c", tmp_path / "old" / "c", CYL_CFG)["spinup"]["profile_observable"] == S.PROFILE_MISSING
 
 
 def test_fixed_orientations_are_frozen_and_tumbling_ones_are_not(tmp_path):

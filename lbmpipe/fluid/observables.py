@@ -98,6 +98,32 @@ def radial_profile(uz_mean: np.ndarray, fluid: np.ndarray, x: np.ndarray, y: np.
     return rs[keep] / count[keep], us[keep] / count[keep], count[keep]
 
 
+#: fraction of the pipe radius inside which :func:`core_velocity_ratio` averages
+CORE_FRACTION = 0.5
+#: its Hagen-Poiseuille value: the mean of 2 U (1 - r^2/R^2) over r < c R is 2 U (1 - c^2/2)
+CORE_RATIO_POISEUILLE = 2.0 * (1.0 - CORE_FRACTION**2 / 2.0)
+
+
+def core_mask(x: np.ndarray, y: np.ndarray, radius: float, nz: int) -> np.ndarray:
+    """Nodes of a pipe lattice (node coordinates ``x``, ``y`` about the axis) within
+    ``CORE_FRACTION`` of the radius, shape ``(len(x), len(y), nz)``."""
+    X, Y = np.meshgrid(x, y, indexing="ij")
+    return np.repeat((X**2 + Y**2 < (CORE_FRACTION * radius) ** 2)[:, :, None], nz, axis=2)
+
+
+def core_velocity_ratio(uz: np.ndarray, fluid: np.ndarray, core: np.ndarray) -> float:
+    """One number for the shape of the flow profile at an instant: the mean axial velocity of the
+    fluid nodes in the core (``core_mask``) over that of all fluid nodes; ``CORE_RATIO_POISEUILLE``
+    (1.75) for Hagen-Poiseuille, lower for a blunted profile, NaN without fluid in the core.
+    The spin-up test follows it sample by sample (``profile.csv`` is a time average)."""
+    inner = fluid & core
+    n_all, n_in = int(fluid.sum()), int(inner.sum())
+    if n_all == 0 or n_in == 0:
+        return float("nan")
+    u_all = float(uz[fluid].sum()) / n_all
+    return float(uz[inner].sum()) / n_in / u_all if u_all != 0.0 else float("nan")
+
+
 def poiseuille_pipe(r: np.ndarray, radius: float, u_max: float) -> np.ndarray:
     """Hagen-Poiseuille profile ``u_max (1 - r^2/R^2)`` (zero outside the pipe)."""
     return np.where(r < radius, u_max * (1.0 - (r / radius) ** 2), 0.0)

@@ -142,7 +142,7 @@ def write_unpackable(case_dir: Path, case_name: str, packing_info: dict) -> None
     pd.DataFrame(columns=list(PARQUET_COLUMNS), dtype="float64").to_parquet(case_dir / "particles.parquet", index=False)
     (case_dir / "particles_static.csv").write_text(",".join(STATIC_COLUMNS) + "\n")
     (case_dir / "profile.csv").write_text("r_mm,uz_m_s,uz_poiseuille_m_s,nodes\n")
-    (case_dir / "flow_rate.csv").write_text("t_s,q_m3_s,force_density_N_m3,max_density_deviation\n")
+    (case_dir / "flow_rate.csv").write_text("t_s,q_m3_s,force_density_N_m3,max_density_deviation,core_velocity_ratio\n")
 
 
 def estimate_minutes(config: dict, fidelity_name: str, case_name: str) -> int:

@@ -251,8 +251,10 @@ def _nan_axes() -> dict:
 #: the keys of a :func:`lbmpipe.reproduction.steady.mean_interval` dict kept in ``stats.json``
 _INTERVAL_KEYS = ("method", "batch_s", "n_batches", "dof", "tau_int_s", "tau_status", "sufficient", "required_s",
                   "duration_s", "message")
-PROFILE_OBSERVABLE = ("not available: profile.csv is a time average after the run's spin-up and no per-sample "
-                      "flow-profile scalar is written, so the spin-up test cannot use the flow profile")
+PROFILE_OBSERVABLE = ("core_velocity_ratio of flow_rate.csv: the mean axial velocity within half the radius over "
+                      "the mean over all the fluid, per sample (1.75 for Hagen-Poiseuille)")
+PROFILE_MISSING = ("not available: this run's flow_rate.csv has no per-sample flow-profile scalar "
+                   "(core_velocity_ratio); rerun the case")
 
 
 def _interval(series, dt: float, tau_s: float | None = None) -> dict:
@@ -285,12 +287,14 @@ def _body_arrays(df: pd.DataFrame, cols: list[str]) -> tuple[np.ndarray, np.ndar
     return times, d[cols].to_numpy(float).reshape(times.size, ids.size, len(cols))
 
 
-def _force_series(case_dir: Path, t: np.ndarray) -> np.ndarray | None:
-    """The driving force density (``flow_rate.csv``) at the particle sample times ``t``, or None."""
+def _flow_series(case_dir: Path, t: np.ndarray, column: str) -> np.ndarray | None:
+    """A column of ``flow_rate.csv`` (the driving force density, the profile's core velocity
+    ratio) at the particle sample times ``t``, or None where it is missing or not finite."""
     fr = H.read_flow_rate(case_dir)
-    if fr is None or "force_density_N_m3" not in fr or fr.empty:
+    if fr is None or column not in fr or fr.empty:
         return None
-    key = pd.Series(fr["force_density_N_m3"].to_numpy(float), index=np.round(fr["t_s"].to_numpy(float), 9))
+    key = pd.Series(pd.to_numeric(fr[column], errors="coerce").to_numpy(float),
+                    index=np.round(fr["t_s"].to_numpy(float), 9))
     key = key[~key.index.duplicated()]
     out = key.reindex(np.round(t, 9)).to_numpy()
     return out if np.all(np.isfinite(out)) else None
@@ -305,7 +309,7 @@ def detect_spinup(t: np.ndarray, observables: dict, summary: dict, min_viscous_t
     own = float(summary.get("spinup_s") or 0.0)
     floor = max(own, min_viscous_times * tv) if np.isfinite(tv) else own
     base = {"viscous_time_s": tv, "min_viscous_times": float(min_viscous_times), "required_s": floor,
-            "profile_observable": PROFILE_OBSERVABLE}
+            "profile_observable": PROFILE_OBSERVABLE if "core_velocity_ratio" in observables else PROFILE_MISSING}
     if np.count_nonzero(t > floor + 1e-9 * max(1.0, floor)) < 4:
         return {**base, "method": "run shorter than the required spin-up", "spinup_s": own, "steady": False,
                 "limited_by": "run length", "observables": {},
@@ -403,9 +407,12 @@ def _particle_statistics(out: dict, df: pd.DataFrame, case_dir: Path, meta: dict
     out["locked"] = _locked(x, q, meta, summary, diag)
     obs = {f"mean_abs_omega_{a}": w[..., k].mean(axis=1) for k, a in enumerate(AXES)}
     obs["orientation_order"] = orientation_order(q, shape)
-    force = _force_series(case_dir, t)
+    force = _flow_series(case_dir, t, "force_density_N_m3")
     if force is not None:
         obs = {"force_density": force, **obs}
+    profile = _flow_series(case_dir, t, "core_velocity_ratio")
+    if profile is not None:
+        obs["core_velocity_ratio"] = profile
     if spinup_s is None:
         out["spinup"] = detect_spinup(t, obs, summary, float(diag["min_spinup_viscous_times"]))
         out["spinup_s"] = float(out["spinup"]["spinup_s"])
