@@ -370,9 +370,9 @@ class FlowRateSeries(Reporter):
         return None
 
     def restore(self, series: np.ndarray) -> None:
-        """Rows from a checkpoint's array (a checkpoint written before the core ratio: NaN)."""
+        """Rows from a checkpoint's (n, columns) array (a checkpoint written before the core ratio
+        has 4 columns: NaN)."""
         a = np.asarray(series, dtype=np.float64)
-        a = a.reshape(-1, a.shape[1] if a.ndim == 2 and a.size else self.COLUMNS)
         if a.shape[1] < self.COLUMNS:
             a = np.hstack([a, np.full((a.shape[0], self.COLUMNS - a.shape[1]), np.nan)])
         self.rows = [(int(r[0]), *map(float, r[1:])) for r in a]
@@ -396,18 +396,11 @@ class ParticleSamples(Reporter):
         self.recorder.sample(sim.step_count)
         return None
 
-    def write(self, out_dir, summary, files, scene, sim, mass0, n_fluid0=float("nan")) -> None:
+    def write(self, out_dir, summary, files, scene, sim, mass0) -> None:
         from .particles import placement
 
         ps, grid = sim.particles, sim.grid
         records = sim.records()
-        # Moving bodies cover and uncover nodes, so the fluid's total mass follows its volume (bodies
-        # free to overlap, collisions off, cover fewer nodes): the mean density per fluid node is
-        # what a leak would change; both are reported
-        mass1, n1 = sim.mass(), float(ps.n_fluid)
-        summary["fluid_nodes_change_rel"] = n1 / n_fluid0 - 1.0 if n_fluid0 > 0 else float("nan")
-        summary["density_drift_rel"] = ((mass1 / n1) / (mass0 / n_fluid0) - 1.0
-                                        if n_fluid0 > 0 and n1 > 0 else float("nan"))
         summary["particles"] = {
             "count": ps.n, "fixed": int(len(ps.fixed_ids)),
             "volume_fraction": float(ps.vol.sum() / max(float(np.count_nonzero(grid.fluid)), 1.0)),
@@ -601,6 +594,16 @@ class CheckpointWriter(Reporter):
             self.path.unlink(missing_ok=True)
 
 
+def _fluid_volume_drift(mass0: float, mass1: float, n_fluid0: float, n_fluid1: int) -> dict:
+    """With particles: moving bodies cover and uncover nodes, so the fluid's total mass follows its
+    volume (bodies free to overlap, collisions off, cover fewer nodes); the mean density per fluid
+    node is what a leak would change. Both drifts, relative (NaN without the start's node count)."""
+    if not n_fluid0 > 0 or n_fluid1 <= 0:
+        return {"fluid_nodes_change_rel": float("nan"), "density_drift_rel": float("nan")}
+    return {"fluid_nodes_change_rel": n_fluid1 / n_fluid0 - 1.0,
+            "density_drift_rel": (mass1 / n_fluid1) / (mass0 / n_fluid0) - 1.0}
+
+
 @dataclass
 class _RunState:
     """The accumulators of one ``run_scene`` call that a checkpoint carries."""
@@ -709,6 +712,7 @@ def _run_scene(scene, params, out_dir, progress, max_steps, checkpoint, checkpoi
         "threads": numba.get_num_threads(),
         "fluid_nodes": grid.n_fluid,
         "mass_drift_rel": (mass1 - mass0) / mass0 if math.isfinite(mass1) else float("nan"),
+        **(_fluid_volume_drift(mass0, mass1, run.n_fluid0, sim.particles.n_fluid) if sim.particles is not None else {}),
         "effects": {e.name: sim.timers[e.name] for e in sim.effects},
         "samples_averaged": profile.n_avg,
         "spinup_s": spinup * units.dt_s,
@@ -719,7 +723,7 @@ def _run_scene(scene, params, out_dir, progress, max_steps, checkpoint, checkpoi
         summary["checkpoint"] = writer.record(status)
     run.flow.write(out_dir, summary, files, scene, units)
     if run.particles is not None:
-        run.particles.write(out_dir, summary, files, scene, sim, mass0, run.n_fluid0)
+        run.particles.write(out_dir, summary, files, scene, sim, mass0)
     profile.write(out_dir, summary, files, scene, params, run.flow.rows)
     if fields is not None:
         files.update(dict.fromkeys(field_writer.close(), True))

@@ -33,7 +33,6 @@ the flagged cases it rests on.
 
 from __future__ import annotations
 
-import json
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -157,7 +156,7 @@ class Inputs:
         return None
 
     def _status_reason(self, name: str, status: str) -> str:
-        s = _read_json(self.fid_dir / "cases" / name / "summary.json") or {}
+        s = health.read_json(self.fid_dir / "cases" / name / "summary.json") or {}
         if status == "unpackable":
             reached = (s.get("packing") or {}).get("concentration_reached")
             if reached is None:
@@ -219,7 +218,7 @@ class Inputs:
         if name not in self.cases:
             return None, f"no case {name} in config.yaml"
         path = self.fid_dir / "cases" / name / "profile.csv"
-        s = _read_json(self.fid_dir / "cases" / name / "summary.json")
+        s = health.read_json(self.fid_dir / "cases" / name / "summary.json")
         if s is not None and s.get("status") != "completed":
             return None, self._status_reason(name, str(s.get("status")))
         try:
@@ -230,13 +229,6 @@ class Inputs:
         if not len(df):
             return None, f"{name}: profile.csv is empty"
         return df, None
-
-
-def _read_json(path: Path) -> dict | None:
-    try:
-        return json.loads(Path(path).read_text())
-    except (OSError, ValueError):
-        return None
 
 
 def _desc(shape, size, c, re_, coll=True) -> str:
@@ -284,7 +276,7 @@ def case_diagnoses(inputs: Inputs, name: str) -> list[str]:
     (:mod:`lbmpipe.reproduction.health`): frozen, locked, unhealthy, not steady, intervals too short
     (with the duration needed), and its resolution in lattice spacings as a fact. Each item names
     the case."""
-    s = _read_json(inputs.fid_dir / "cases" / name / "stats.json") or {}
+    s = health.read_json(inputs.fid_dir / "cases" / name / "stats.json") or {}
     if not health.health_is_computed(s):
         return [f"{name}: diagnostics {health.NOT_COMPUTED}"]
     out = []

@@ -183,13 +183,6 @@ def isotropic_bin_fractions(kind: str, edges_deg) -> np.ndarray:
 # ----------------------------------------------------------------------------------------------
 # per case
 
-def _read_json(path: Path) -> dict | None:
-    try:
-        return json.loads(Path(path).read_text())
-    except (OSError, ValueError):
-        return None
-
-
 def case_metadata(case: str, case_cfg: dict) -> dict:
     """Shape, sizes, concentration, Reynolds number and collisions of a case, from its config
     entry (never from its name). ``size_label``: ``"8x16 mm"`` (cylinder, diameter x length),
@@ -377,7 +370,7 @@ def case_statistics(case: str, case_dir: Path, case_cfg: dict, spinup_s: float |
     case_dir = Path(case_dir)
     diag = H.thresholds(config)
     meta = case_metadata(case, case_cfg)
-    summary = _read_json(case_dir / "summary.json")
+    summary = H.read_json(case_dir / "summary.json")
     status = summary.get("status", "unknown") if summary else "not run"
     s = summary or {}
     out = _base_stats(case, meta, status, s, float(spinup_s) if spinup_s is not None
@@ -512,7 +505,7 @@ def _num(v) -> float:
 
 def _case_stats(case: str, case_dir: Path, case_cfg: dict) -> dict:
     """stats.json of a case, computed on the fly if it was not written."""
-    s = _read_json(case_dir / "stats.json")
+    s = H.read_json(case_dir / "stats.json")
     if s is None:
         s = case_statistics(case, case_dir, case_cfg)
     return s
@@ -549,7 +542,7 @@ def aggregate(fid_dir: Path, cases: dict) -> None:
         if meta["shape"] not in ORIENTATION_KINDS:
             continue
         cdir = fid_dir / "cases" / case
-        summary = _read_json(cdir / "summary.json") or {}
+        summary = H.read_json(cdir / "summary.json") or {}
         s = _case_stats(case, cdir, cfg)
         status = summary.get("status", s.get("status", "not run")) if summary else "not run"
         parts = summary.get("particles") or {}
@@ -600,7 +593,7 @@ def runtime_table(fid_dir: Path, cases: dict) -> Path:
     fid_dir = Path(fid_dir)
     rows = []
     for case in cases:
-        summary = _read_json(fid_dir / "cases" / case / "summary.json") or {}
+        summary = H.read_json(fid_dir / "cases" / case / "summary.json") or {}
         bench = fid_dir / "benchmarks" / f"{case}.simulate.tsv"
         wall, rss = _NAN, _NAN
         if bench.exists():
