@@ -7,8 +7,8 @@ from snakemake.utils import min_version, validate
 
 from pathlib import Path
 
-from lbmpipe.reproduction.cases import (CONFIG_SCHEMA, case_scene, config_problems, estimate_minutes, packing_id,
-                                       write_case_scene)
+from lbmpipe.reproduction.cases import (CONFIG_SCHEMA, case_scene, config_problems, estimate_minutes, level_runs,
+                                       packing_id, run_case, write_case_scene)
 from lbmpipe.reproduction.statistics import write_case_outputs
 
 min_version("8.0")
@@ -30,6 +30,9 @@ if FIDELITY not in config["fidelities"]:
 CASES = sorted(config["cases"])
 FLOW_CASES = [c for c in CASES if config["cases"][c].get("particles") is None]
 PARTICLE_CASES = [c for c in CASES if c not in FLOW_CASES]
+# Simulation runs of the default level: a level with `seeds` runs each particle case once per packing
+# seed, in cases/<case>/seed<k>/.
+RUNS = level_runs(config, FIDELITY)
 
 
 # Inputs the document reads beyond figures and claims (the stability table, the study), as

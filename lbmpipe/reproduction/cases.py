@@ -44,12 +44,13 @@ def case_scene(name: str, case: dict, fidelity_name: str, fidelity: dict, packin
         raise ValueError(f"case {name}: reynolds must be one of {sorted(FLOWS)} (the paper's flows), got {re}")
     run = fidelity["run"]
     # Few large particles give few independent samples per second: such cases average longer.
-    scene = pipe_scene(f"{name}_{fidelity_name}", re, fidelity_numerics(fidelity, re),
+    part = case.get("particles")
+    label = name if part is None or "seed" not in part else f"{name}_s{int(part['seed'])}"
+    scene = pipe_scene(f"{label}_{fidelity_name}", re, fidelity_numerics(fidelity, re),
                        {"duration_s": float(fidelity.get("duration_s_by_case", {}).get(name, run["duration_s"])),
                         "spinup_s": run["spinup_s"], "sample_interval_s": run["sample_interval_s"]})
     if "mach_limit" in fidelity:
         scene["numerics"]["mach_limit"] = fidelity["mach_limit"]
-    part = case.get("particles")
     if part is not None:
         group = {k: part[k] for k in ("shape", "diameter_mm", "length_mm", "edge_mm", "concentration") if k in part}
         group["seed"] = int(part.get("seed", DEFAULT_SEED))
@@ -76,11 +77,53 @@ def packing_id(case: dict) -> str | None:
     return f"{size}_c{round(100 * p['concentration']):d}_s{int(p.get('seed', DEFAULT_SEED))}"
 
 
+def with_seed(case: dict, seed: int | None) -> dict:
+    """The case with its packing seed set to ``seed`` (unchanged when ``None`` or particle-free)."""
+    if seed is None or case.get("particles") is None:
+        return case
+    out = copy.deepcopy(case)
+    out["particles"]["seed"] = int(seed)
+    return out
+
+
+def split_run(run: str) -> tuple[str, int | None]:
+    """``"cyl8x8_c30_re9.4/seed2"`` -> ``("cyl8x8_c30_re9.4", 2)``; a run without a seed part
+    (levels with one packing per case, particle-free cases) -> ``(run, None)``."""
+    name, _, seed = run.partition("/seed")
+    return name, (int(seed) if seed else None)
+
+
+def run_case(config: dict, run: str) -> tuple[str, dict]:
+    """Case name and case dict of a run (a case, or one seed of it: ``split_run``)."""
+    name, seed = split_run(run)
+    return name, with_seed(config["cases"][name], seed)
+
+
+def level_seeds(fidelity: dict) -> list[int]:
+    """The packing seeds a fidelity level runs for every particle case: ``[1, ..., seeds]``."""
+    return list(range(1, int(fidelity.get("seeds", 1)) + 1))
+
+
+def level_runs(config: dict, fidelity_name: str) -> list[str]:
+    """Every simulation run of a level: each particle-free case, and each particle case once per
+    packing seed (``case/seed<k>``) in a level with ``seeds``, else once (``case``)."""
+    fid = config["fidelities"][fidelity_name]
+    runs = []
+    for name in sorted(config["cases"]):
+        if config["cases"][name].get("particles") is None or "seeds" not in fid:
+            runs.append(name)
+        else:
+            runs += [f"{name}/seed{k}" for k in level_seeds(fid)]
+    return runs
+
+
 def packing_case(config: dict, pid: str) -> tuple[str, dict]:
-    """A case of the config that uses packing ``pid`` (any one: they share it)."""
+    """A case of the config that uses packing ``pid`` (any one: they share it), with the seed
+    the packing names."""
+    seed = int(pid.rsplit("_s", 1)[1])
     for name, case in config["cases"].items():
-        if packing_id(case) == pid:
-            return name, case
+        if case.get("particles") is not None and packing_id(with_seed(case, seed)) == pid:
+            return name, with_seed(case, seed)
     raise ValueError(f"no case of the config uses packing {pid!r}")
 
 
@@ -151,7 +194,7 @@ def estimate_minutes(config: dict, fidelity_name: str, case_name: str) -> int:
     from ..units import derive
 
     fid = config["fidelities"][fidelity_name]
-    case = config["cases"][case_name]
+    case_name, case = run_case(config, case_name)
     data = case_scene(case_name, case, fidelity_name, fid)
     data.pop("particles", None)
     params = derive(Scene.model_validate(data))
@@ -171,7 +214,8 @@ def write_case_scene(config: dict, fidelity_name: str, case_name: str, path: Pat
     packing file is referenced relative to the scene file."""
     fid = config["fidelities"][fidelity_name]
     rel = os.path.relpath(Path(packing_csv).resolve(), Path(path).resolve().parent) if packing_csv else None
-    data = case_scene(case_name, config["cases"][case_name], fidelity_name, fid, rel)
+    name, case = run_case(config, case_name)
+    data = case_scene(name, case, fidelity_name, fid, rel)
     probe = copy.deepcopy(data)
     for g in (probe.get("particles") or {}).get("packed", []):
         g.pop("file", None)  # validate without reading the file

@@ -84,7 +84,7 @@ rule simulate_particles:
         particles="results/{fidelity}/cases/{case}/particles.parquet",
         static="results/{fidelity}/cases/{case}/particles_static.csv",
     wildcard_constraints:
-        case="(cyl|cube|sphere)[^/]+",
+        case="(cyl|cube|sphere)[^/]+(/seed[0-9]+)?",
     params:
         checkpoint=lambda wc: f"results/{wc.fidelity}/checkpoints/{wc.case}.npz",
         # an unstable or unpackable particle case is a result the statistics report

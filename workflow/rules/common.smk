@@ -7,12 +7,12 @@ from lbmpipe.reproduction import study as lbm_study
 
 
 def _packing_input(wildcards):
-    pid = packing_id(config["cases"][wildcards.case])
+    pid = packing_id(run_case(config, wildcards.case)[1])
     return {} if pid is None else {"packing": f"results/packings/{pid}.csv"}
 
 
 def _packing_info(wildcards):
-    return f"results/packings/{packing_id(config['cases'][wildcards.case])}.json"
+    return f"results/packings/{packing_id(run_case(config, wildcards.case)[1])}.json"
 
 
 def _scene_settings(wildcards):
@@ -20,7 +20,7 @@ def _scene_settings(wildcards):
     # duration, a case's particles) reruns that case under Snakemake's params rerun trigger, and
     # only the cases it changes.
     fid = config["fidelities"][wildcards.fidelity]
-    scene = case_scene(wildcards.case, config["cases"][wildcards.case], wildcards.fidelity, fid)
+    scene = case_scene(*run_case(config, wildcards.case), wildcards.fidelity, fid)
     return json.dumps(scene, sort_keys=True)
 
 
@@ -54,7 +54,7 @@ def _packing_priority(wildcards):
     # The longest case waiting for this packing (at the default level): priorities on the
     # simulations alone did not reach their packings, and the paper level's two longest cases
     # (13 min each) waited 18 min for theirs.
-    return max((_estimate(FIDELITY, c) for c in PARTICLE_CASES if packing_id(config["cases"][c]) == wildcards.packing),
+    return max((_estimate(FIDELITY, r) for r in RUNS if packing_id(run_case(config, r)[1]) == wildcards.packing),
                default=1)
 
 

@@ -20,11 +20,11 @@ rule statistics:
         stats="results/{fidelity}/cases/{case}/stats.json",
         orientation="results/{fidelity}/cases/{case}/orientation.csv",
     wildcard_constraints:
-        case="(cyl|cube|sphere)[^/]+",
+        case="(cyl|cube|sphere)[^/]+(/seed[0-9]+)?",
     log:
         "results/{fidelity}/logs/{case}.statistics.log",
     run:
-        write_case_outputs(wildcards.case, Path(output.stats).parent, config["cases"][wildcards.case], config)
+        write_case_outputs(wildcards.case, Path(output.stats).parent, run_case(config, wildcards.case)[1], config)
 
 
 rule tables:
