@@ -8,7 +8,9 @@ from snakemake.utils import min_version, validate
 from pathlib import Path
 
 from lbmpipe.reproduction.cases import (CONFIG_SCHEMA, case_scene, config_problems, estimate_minutes, level_runs,
-                                       packing_id, run_case, write_case_scene)
+                                       level_seeds, packing_id, run_case, write_case_scene)
+from lbmpipe.reproduction.literate import study_level
+from lbmpipe.reproduction.seeds import write_combined
 from lbmpipe.reproduction.statistics import write_case_outputs
 
 min_version("8.0")
@@ -33,6 +35,27 @@ PARTICLE_CASES = [c for c in CASES if c not in FLOW_CASES]
 # Simulation runs of the default level: a level with `seeds` runs each particle case once per packing
 # seed, in cases/<case>/seed<k>/.
 RUNS = level_runs(config, FIDELITY)
+# Levels with several packings per case: their cases/<case>/ holds the seeds' combined record.
+SEEDED_LEVELS = [f for f, fid in config["fidelities"].items() if "seeds" in fid]
+# `new_runs: none` (config.yaml) builds the figures, tables, claims and the document from the runs
+# present - the committed ones on a fresh clone - and starts no simulation; `new_runs=all` runs
+# every missing one too (a level's production, finished in parts: each run checkpoints and is kept).
+NEW_RUNS = config.get("new_runs", "all")
+
+
+def run_present(level, run):
+    return Path(f"results/{level}/cases/{run}/summary.json").exists()
+
+
+if NEW_RUNS == "all":
+    ACTIVE_RUNS = RUNS
+else:
+    ACTIVE_RUNS = [r for r in RUNS if run_present(FIDELITY, r)]
+    if len(ACTIVE_RUNS) < len(RUNS):
+        print(f"new_runs={NEW_RUNS}: building {FIDELITY} from the {len(ACTIVE_RUNS)} of {len(RUNS)} runs present; "
+              "`--config new_runs=all` runs the others", file=sys.stderr)
+ACTIVE_CASES = sorted({r.split("/seed")[0] for r in ACTIVE_RUNS})
+ACTIVE_PARTICLE_CASES = [c for c in ACTIVE_CASES if c in PARTICLE_CASES]
 
 
 # Inputs the document reads beyond figures and claims (the stability table, the study), as
@@ -43,6 +66,12 @@ PAPER_EXTRA_INPUTS = [
     "results/{fidelity}/study/accuracy_cost.png",
     "results/{fidelity}/study/cost_model.png",
 ]
+
+
+def paper_extra_inputs(wildcards):
+    # a level with `study_level` shows that level's stability table and study (the same lattice)
+    level = study_level(config, wildcards.fidelity)
+    return [pattern.format(fidelity=level) for pattern in PAPER_EXTRA_INPUTS]
 
 
 include: "workflow/rules/common.smk"

@@ -115,6 +115,7 @@ def _workdir(tmp: Path, name: str) -> Path:
             shutil.copytree(ROOT / sub, d / sub, ignore=shutil.ignore_patterns("__pycache__"))
     config = yaml.safe_load((ROOT / "config.yaml").read_text())
     config["fidelity"] = FIDELITY
+    config["new_runs"] = "all"
     config["cases"] = {c: config["cases"][c] for c in CASES}
     (d / "config.yaml").write_text(yaml.safe_dump(config, sort_keys=False))
     return d

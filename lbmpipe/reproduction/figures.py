@@ -615,7 +615,11 @@ def snapshot_figure(case_dir: Path, title: str = ""):
             summary = json.loads((case_dir / "summary.json").read_text())
         except ValueError:
             pass
-    df = pd.read_parquet(pq) if pq.exists() else pd.DataFrame()
+    frame = case_dir / st.LAST_FRAME
+    try:
+        df = pd.read_csv(frame) if frame.exists() else pd.read_parquet(pq) if pq.exists() else pd.DataFrame()
+    except pd.errors.EmptyDataError:
+        df = pd.DataFrame()
     note = ""
     colour_bar = None
     if df.empty or not static.exists():
@@ -682,16 +686,23 @@ def snapshot_figure(case_dir: Path, title: str = ""):
     return fig
 
 
-def snapshots(fid_dir: Path, cases: dict, fidelity: str | None = None) -> list[Path]:
-    """``fid_dir/figures/fig3_<case>.png`` for every particle case of the config dict ``cases``."""
+def snapshots(fid_dir: Path, cases: dict, fidelity: str | None = None, run: str = "") -> list[Path]:
+    """``fid_dir/figures/fig3_<case>.png`` for every particle case of the config dict ``cases``,
+    drawn from ``cases/<case>/<run>`` (``run``: ``seed1`` in a level with several packings)."""
+    from . import statistics as st
+
     fid_dir = Path(fid_dir)
     fidelity = fidelity or fid_dir.name
     out = []
     for case, cfg in cases.items():
         if not (cfg or {}).get("particles"):
             continue
-        out.append(snapshot(fid_dir / "cases" / case, fid_dir / "figures" / f"fig3_{case}",
-                            title=f"{case}, fidelity {fidelity}"))
+        label = f"{case}{', ' + run.replace('seed', 'seed ') if run else ''}, fidelity {fidelity}"
+        case_dir, png = fid_dir / "cases" / case / run, fid_dir / "figures" / f"fig3_{case}.png"
+        if png.exists() and not any((case_dir / f).exists() for f in (st.LAST_FRAME, "particles.parquet")):
+            out.append(png)  # drawn from a trajectory no longer here (not committed): kept, not blanked
+            continue
+        out.append(snapshot(case_dir, png.with_suffix(""), title=label))
     return out
 
 

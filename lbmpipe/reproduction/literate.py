@@ -555,8 +555,10 @@ def build_context(repo_root: Path, fid_dir: Path, fidelity: str, config: dict, o
         claims_ctx = {"table": table_of(claims, ["claim", "statement", "statistic", "values", "verdict", "reason"]),
                       "counts": [{"verdict": k, "n": fmt(int(v))} for k, v in sorted(counts.items())]}
         claims_ctx["counts_md"] = ", ".join(f"{c['n']} {c['verdict']}" for c in claims_ctx["counts"])
-    stability = _read_csv(fid_dir / "tables" / "stability.csv")
     fid_cfg = fids.get(fidelity, {})
+    # A level on another level's lattice shows that level's stability suite and study (study_level).
+    study_dir = fid_dir.parent / study_level(config, fidelity)
+    stability = _read_csv(study_dir / "tables" / "stability.csv")
     return {
         "fidelity": fidelity,
         "fid_dir": _rel_to(fid_dir, repo_root),
@@ -574,11 +576,18 @@ def build_context(repo_root: Path, fid_dir: Path, fidelity: str, config: dict, o
         "decisions": decisions,
         "claims": claims_ctx,
         "stability": table_of(stability) if stability is not None else None,
-        "study": study_section(fid_dir, out_dir),
+        "study": study_section(study_dir, out_dir),
+        "study_level": study_level(config, fidelity),
         "health": health_section(fid_dir, config),
         "runtime": runtime_section(fid_dir, fidelity),
         "missing": lambda rel: f"not built at this level: `{_rel_to(fid_dir, repo_root)}/{rel}` missing",
     }
+
+
+def study_level(config: dict, fidelity: str) -> str:
+    """The level whose stability suite and accuracy-cost study a level's document shows: the
+    level's ``study_level`` (a level on the same lattice), else the level itself."""
+    return str(((config.get("fidelities") or {}).get(fidelity) or {}).get("study_level", fidelity))
 
 
 def _rel_to(path: Path, root: Path) -> str:

@@ -494,6 +494,23 @@ def write_case_outputs(case: str, case_dir: Path, case_cfg: dict, config: dict |
     tau_o = (s.get("orientation_memory") or {}).get("tau_orient_s")
     orientation_histograms(case_dir, s["shape"], spin, status=s["status"], tau_s=tau_o).to_csv(
         case_dir / "orientation.csv", index=False)
+    write_last_frame(case_dir)
+
+
+#: the last sample of a run's particles (positions, orientations): what the snapshot figure draws,
+#: small enough to commit where the trajectory (particles.parquet) is not
+LAST_FRAME = "last_frame.csv"
+
+
+def write_last_frame(case_dir: Path) -> Path:
+    """Write ``last_frame.csv``: the rows of ``particles.parquet``'s last sample (empty if none)."""
+    case_dir = Path(case_dir)
+    pq = case_dir / "particles.parquet"
+    df = pd.read_parquet(pq) if pq.exists() else pd.DataFrame()
+    if not df.empty:
+        df = df[df["t_s"] == df["t_s"].max()]
+    df.to_csv(case_dir / LAST_FRAME, index=False)
+    return case_dir / LAST_FRAME
 
 
 # ----------------------------------------------------------------------------------------------

@@ -1,6 +1,7 @@
 # Functions the rules use (Snakemake's lint wants them apart from the rules).
 import functools
 import json
+import re
 
 from lbmpipe.reproduction import stability as lbm_stability
 from lbmpipe.reproduction import study as lbm_study
@@ -8,7 +9,7 @@ from lbmpipe.reproduction import study as lbm_study
 
 def _packing_input(wildcards):
     pid = packing_id(run_case(config, wildcards.case)[1])
-    return {} if pid is None else {"packing": f"results/packings/{pid}.csv"}
+    return {} if pid is None else {"packing": ancient(f"results/packings/{pid}.csv")}
 
 
 def _packing_info(wildcards):
@@ -69,9 +70,36 @@ def _study_case_inputs(wildcards):
     case = lbm_study.study_settings(config, wildcards.fidelity)["averaging"]["case"]
     if case not in config["cases"]:
         return {}
-    return {"case_summary": f"results/{wildcards.fidelity}/cases/{case}/summary.json",
-            "case_particles": f"results/{wildcards.fidelity}/cases/{case}/particles.parquet"}
+    # ancient, and the case's trajectory (particles.parquet) read if present, not declared: the
+    # committed study is regenerated on a fresh clone without rerunning the case (cases.smk)
+    return {"case_summary": ancient(f"results/{wildcards.fidelity}/cases/{case}/summary.json"),
+            "case_stats": ancient(f"results/{wildcards.fidelity}/cases/{case}/stats.json")}
 
 
 def _study_threads(wildcards):
     return int(lbm_study.study_settings(config, wildcards.fidelity)["threads"])
+
+
+def _seed_files(name):
+    # The seeds' files a case's combined record reads (lbmpipe.reproduction.seeds).
+    def files(wildcards):
+        runs = [f"{wildcards.case}/seed{k}" for k in level_seeds(config["fidelities"][wildcards.fidelity])]
+        if NEW_RUNS != "all":  # the seeds present (Snakefile)
+            runs = [r for r in runs if run_present(wildcards.fidelity, r)]
+        return [f"results/{wildcards.fidelity}/cases/{r}/{name}" for r in runs]
+    return files
+
+
+def _level_regex(levels):
+    # a wildcard constraint matching exactly these fidelity levels (none: matches nothing)
+    return "|".join(re.escape(x) for x in levels) if levels else "(?!)"
+
+
+def _snapshot_files(name):
+    # The run each snapshot (Fig. 3) draws: the case's, or its first seed's in a seeded level.
+    def files(wildcards):
+        sub = "/seed1" if wildcards.fidelity in SEEDED_LEVELS else ""
+        # under new_runs=none the runs whose last frame is here (a run without one is drawn as it is)
+        return [f"results/{wildcards.fidelity}/cases/{c}{sub}/{name}" for c in PARTICLE_CASES
+                if NEW_RUNS == "all" or Path(f"results/{wildcards.fidelity}/cases/{c}{sub}/last_frame.csv").exists()]
+    return files

@@ -12,13 +12,15 @@ rule statistics:
     conda:
         "../envs/lbmpipe.yaml"
     input:
-        summary="results/{fidelity}/cases/{case}/summary.json",
-        particles="results/{fidelity}/cases/{case}/particles.parquet",
-        static="results/{fidelity}/cases/{case}/particles_static.csv",
-        flow_rate="results/{fidelity}/cases/{case}/flow_rate.csv",
+        # and particles.parquet beside them (undeclared, as in simulate_particles); ancient: a fresh
+        # clone's mtimes must not ask for statistics of a trajectory that is not there
+        summary=ancient("results/{fidelity}/cases/{case}/summary.json"),
+        static=ancient("results/{fidelity}/cases/{case}/particles_static.csv"),
+        flow_rate=ancient("results/{fidelity}/cases/{case}/flow_rate.csv"),
     output:
         stats="results/{fidelity}/cases/{case}/stats.json",
         orientation="results/{fidelity}/cases/{case}/orientation.csv",
+        last_frame="results/{fidelity}/cases/{case}/last_frame.csv",
     wildcard_constraints:
         case="(cyl|cube|sphere)[^/]+(/seed[0-9]+)?",
     log:
@@ -27,14 +29,44 @@ rule statistics:
         write_case_outputs(wildcards.case, Path(output.stats).parent, run_case(config, wildcards.case)[1], config)
 
 
+rule combine_seeds:
+    """A case of a level with several packings: the seeds' statistics combined (mean over the
+    seeds, intervals with the within-run and the between-seed variance, diagnostics of the worst
+    seed), the orientation histograms and velocity profile averaged, the seeds' statuses."""
+    localrule: True
+    input:
+        stats=_seed_files("stats.json"),
+        orientation=_seed_files("orientation.csv"),
+        profile=_seed_files("profile.csv"),
+        summary=_seed_files("summary.json"),
+    output:
+        stats="results/{fidelity}/cases/{case}/stats.json",
+        orientation="results/{fidelity}/cases/{case}/orientation.csv",
+        profile="results/{fidelity}/cases/{case}/profile.csv",
+        summary="results/{fidelity}/cases/{case}/summary.json",
+    wildcard_constraints:
+        fidelity=_level_regex(SEEDED_LEVELS),
+        case="(cyl|cube|sphere)[^/]+",
+    log:
+        "results/{fidelity}/logs/{case}.combine.log",
+    run:
+        write_combined(wildcards.case, Path(output.stats).parent, [int(Path(f).parent.name[4:]) for f in input.stats])
+
+
+# In a seeded level cases/<case>/ is the seeds' combined record, never a run of its own.
+ruleorder: combine_seeds > statistics
+ruleorder: combine_seeds > simulate_particles
+
+
 rule tables:
     """Aggregated tables over all cases (CSV), incl. packing outcomes and run times."""
     conda:
         "../envs/lbmpipe.yaml"
     input:
-        stats=expand("results/{{fidelity}}/cases/{case}/stats.json", case=PARTICLE_CASES),
-        summaries=expand("results/{{fidelity}}/cases/{case}/summary.json", case=CASES),
-        benchmarks=expand("results/{{fidelity}}/benchmarks/{case}.simulate.tsv", case=CASES),
+        # the cases and runs present under new_runs=none (Snakefile); the benchmarks are read if present
+        stats=expand("results/{{fidelity}}/cases/{case}/stats.json", case=ACTIVE_PARTICLE_CASES),
+        summaries=expand("results/{{fidelity}}/cases/{case}/summary.json", case=ACTIVE_CASES),
+        run_summaries=expand("results/{{fidelity}}/cases/{run}/summary.json", run=ACTIVE_RUNS),
     output:
         expand("results/{{fidelity}}/tables/{table}.csv", table=[t for t in TABLES if t != "runtime"]),
         runtime=report("results/{fidelity}/tables/runtime.csv", caption="../report/runtime.rst", category="Run time"),
@@ -50,7 +82,7 @@ rule figures:
         "../envs/lbmpipe.yaml"
     input:
         tables=expand("results/{{fidelity}}/tables/{table}.csv", table=TABLES),
-        profiles=expand("results/{{fidelity}}/cases/{case}/profile.csv", case=CASES),
+        profiles=expand("results/{{fidelity}}/cases/{case}/profile.csv", case=ACTIVE_CASES),
     output:
         pdf=expand("results/{{fidelity}}/figures/{fig}.pdf", fig=FIGURES),
         png=[report(f"results/{{fidelity}}/figures/{fig}.png", caption=f"../report/{fig}.rst", category="Figures")
@@ -67,8 +99,8 @@ rule snapshots:
     conda:
         "../envs/lbmpipe.yaml"
     input:
-        particles=expand("results/{{fidelity}}/cases/{case}/particles.parquet", case=PARTICLE_CASES),
-        static=expand("results/{{fidelity}}/cases/{case}/particles_static.csv", case=PARTICLE_CASES),
+        frames=_snapshot_files("last_frame.csv"),
+        static=_snapshot_files("particles_static.csv"),
     output:
         [report(f"results/{{fidelity}}/figures/fig3_{case}.png", caption="../report/fig3_snapshot.rst",
                 category="Snapshots", subcategory=case) for case in PARTICLE_CASES],

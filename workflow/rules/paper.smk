@@ -7,7 +7,7 @@ rule claims:
         "../envs/lbmpipe.yaml"
     input:
         tables=expand("results/{{fidelity}}/tables/{table}.csv", table=TABLES),
-        profiles=expand("results/{{fidelity}}/cases/{case}/profile.csv", case=CASES),
+        profiles=expand("results/{{fidelity}}/cases/{case}/profile.csv", case=ACTIVE_CASES),
     output:
         report("results/{fidelity}/claims.csv", caption="../report/claims.rst", category="Claims"),
     log:
@@ -25,7 +25,7 @@ rule paper:
         claims="results/{fidelity}/claims.csv",
         figures=expand("results/{{fidelity}}/figures/{fig}.png", fig=FIGURES),
         snapshots=expand("results/{{fidelity}}/figures/fig3_{case}.png", case=PARTICLE_CASES),
-        extra=lambda wc: [pattern.format(fidelity=wc.fidelity) for pattern in PAPER_EXTRA_INPUTS],
+        extra=paper_extra_inputs,
         template="paper/reproduction.md.j2",
     output:
         md="paper/reproduction_{fidelity}.md",

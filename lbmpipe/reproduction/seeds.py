@@ -1,0 +1,255 @@
+"""Several packings per case: the runs of one case from independent packings (seeds), combined.
+
+A level with ``seeds: N`` runs every particle case once per packing seed, in
+``cases/<case>/seed<k>/`` (each with its own ``stats.json``: spin-up, intervals, diagnostics). This
+module writes the case's combined record in ``cases/<case>/``, the files the tables, figures,
+claims and the document read:
+
+- ``stats.json``: per axis, the mean |Omega| over the seeds and a 95 % interval that holds both
+  the noise within each run and the spread between packings (``combine_means``); the orientation
+  means the same way; every diagnostic as its worst seed (frozen, locked, unhealthy, not steady:
+  a case is flagged when any of its seeds is, and says which); the per-seed values under
+  ``seeds`` and the seed-to-seed spread under ``seed_spread_rel``.
+- ``orientation.csv``: the orientation histograms averaged over the seeds, with the seed-to-seed
+  standard error as the bin's interval where the runs give none.
+- ``profile.csv``: the mean axial velocity profile over the seeds.
+- ``summary.json``: the status (``completed`` when every seed completed), the seeds' statuses,
+  steps and seconds summed, and the packing of each seed.
+
+The combined interval (one-way random effects on the seed means ``m_k``, k = 1..n, each with a
+within-run standard error ``s_k`` from its own batch means): the grand mean is ``mean(m_k)``; its
+variance is estimated by the larger of ``var(m_k)/n`` (the seeds' scatter, which holds the
+within-run noise too, with n - 1 degrees of freedom) and ``sum(s_k^2)/n^2`` (the within-run part
+alone, with the runs' degrees of freedom): with three seeds that agree by chance the interval
+does not shrink below what each run's own noise allows.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+from scipy import stats as sps
+
+from . import health as H
+
+AXES = ("x", "y", "z")
+
+
+def _finite(v) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+
+
+def combine_means(means, ci95s, dofs=None) -> dict:
+    """Grand mean of the seeds' means and its 95 % half-width (module docstring).
+
+    ``ci95s`` are the runs' own half-widths (None or NaN where a run gives none) and ``dofs`` their
+    degrees of freedom (None: large). Returns ``mean``, ``ci95``, ``dof``, ``n_seeds``,
+    ``between_se`` and ``within_se`` (standard errors of the grand mean from the seeds' scatter
+    and from the runs' noise) and ``source`` (which of the two sets the interval)."""
+    m = np.array([float(v) for v in means if _finite(v)])
+    n = len(m)
+    out = {"mean": float(m.mean()) if n else None, "ci95": None, "dof": None, "n_seeds": n,
+           "between_se": None, "within_se": None, "source": None}
+    if n == 0:
+        return out
+    dofs = list(dofs) if dofs is not None else [None] * len(means)
+    within, wdof = [], []
+    for v, c, d in zip(means, ci95s, dofs):
+        if not _finite(v):
+            continue
+        if _finite(c):
+            nu = float(d) if _finite(d) and d > 0 else 1e6
+            within.append(float(c) / sps.t.ppf(0.975, nu))
+            wdof.append(nu)
+    within_se = math.sqrt(sum(s * s for s in within)) / n if len(within) == n else None
+    between_se = float(m.std(ddof=1) / math.sqrt(n)) if n >= 2 else None
+    out.update(between_se=between_se, within_se=within_se)
+    if between_se is not None and (within_se is None or between_se >= within_se):
+        out.update(ci95=float(sps.t.ppf(0.975, n - 1) * between_se), dof=n - 1, source="between seeds")
+    elif within_se is not None:
+        # Satterthwaite's degrees of freedom of a sum of the runs' variances
+        num = sum(s * s for s in within) ** 2
+        den = sum(s ** 4 / d for s, d in zip(within, wdof))
+        nu = num / den if den > 0 else 1e6
+        out.update(ci95=float(sps.t.ppf(0.975, nu) * within_se), dof=float(nu), source="within runs")
+    return out
+
+
+def _seed_dirs(case_dir: Path, seeds) -> list[tuple[int, Path]]:
+    return [(int(k), Path(case_dir) / f"seed{int(k)}") for k in seeds]
+
+
+def combine_stats(case: str, per_seed: list[tuple[int, dict]]) -> dict:
+    """The case's combined ``stats.json`` from the seeds' (``[(seed, stats), ...]``)."""
+    done = [(k, s) for k, s in per_seed if s and s.get("status") == "completed" and s.get("samples")]
+    first = next((s for _, s in per_seed if s), {})
+    out = {k: first.get(k) for k in ("shape", "size_label", "reynolds", "concentration", "collisions")}
+    out["case"] = case
+    statuses = {k: (s or {}).get("status", "not run") for k, s in per_seed}
+    out["status"] = ("completed" if done else
+                     next((st for st in statuses.values() if st != "not run"), "not run"))
+    out["seed_status"] = {str(k): st for k, st in statuses.items()}
+    out["n_seeds"] = len(done)
+    out["n_particles"] = int(np.mean([s.get("n_particles") or 0 for _, s in done])) if done else int(
+        first.get("n_particles") or 0)
+    out["samples"] = int(sum(int(s.get("samples") or 0) for _, s in done))
+    spins = [float(s["spinup_s"]) for _, s in done if _finite(s.get("spinup_s"))]
+    out["spinup_s"] = max(spins) if spins else None
+
+    omega, ci, intervals, spread = {}, {}, {}, {}
+    for a in AXES:
+        iv = [((s.get("omega_intervals") or {}).get(a) or {}) for _, s in done]
+        means = [(s.get("mean_abs_omega_rad_s") or {}).get(a) for _, s in done]
+        c = combine_means(means, [(s.get("ci95_rad_s") or {}).get(a) for _, s in done], [r.get("dof") for r in iv])
+        omega[a], ci[a] = c["mean"], c["ci95"]
+        vals = [float(v) for v in means if _finite(v)]
+        spread[a] = (float(np.std(vals, ddof=1) / abs(np.mean(vals))) if len(vals) >= 2 and np.mean(vals) else None)
+        insufficient = [k for (k, _), r in zip(done, iv) if not r.get("sufficient")]
+        intervals[a] = {**c, "method": "seeds combined", "sufficient": bool(done) and not insufficient,
+                        "required_s": max((float(r.get("required_s") or 0.0) for r in iv), default=None),
+                        "duration_s": min((float(r.get("duration_s") or 0.0) for r in iv), default=None),
+                        "message": (f"seeds {', '.join(map(str, insufficient))} averaged less than 20 batches of "
+                                    "5 correlation times" if insufficient else "")}
+    out["mean_abs_omega_rad_s"], out["ci95_rad_s"] = omega, ci
+    out["omega_intervals"], out["seed_spread_rel"] = intervals, spread
+    out["tau_int_s"] = {a: max((float((s.get("tau_int_s") or {}).get(a)) for _, s in done
+                                if _finite((s.get("tau_int_s") or {}).get(a))), default=None) for a in AXES}
+
+    kinds = sorted({kind for _, s in done for kind in (s.get("orientation") or {})})
+    orient = {}
+    for kind in kinds:
+        rows = [((s.get("orientation") or {}).get(kind) or {}) for _, s in done]
+        c = combine_means([r.get("mean_deg") for r in rows], [r.get("ci95_deg") for r in rows],
+                          [(r.get("interval") or {}).get("dof") for r in rows])
+        med = [float(r["median_deg"]) for r in rows if _finite(r.get("median_deg"))]
+        orient[kind] = {"mean_deg": c["mean"], "ci95_deg": c["ci95"], "median_deg": float(np.mean(med)) if med else None,
+                        "interval": c}
+    out["orientation"] = orient
+    taus = [float((s.get("orientation_memory") or {}).get("tau_orient_s")) for _, s in done
+            if _finite((s.get("orientation_memory") or {}).get("tau_orient_s"))]
+    out["orientation_memory"] = {"tau_orient_s": max(taus) if taus else None}
+    order = [(s.get("orientation_order") or {}) for _, s in done]
+    out["orientation_order"] = combine_means([o.get("mean") for o in order], [o.get("ci95") for o in order],
+                                             [o.get("dof") for o in order])
+
+    out.update(_worst_diagnostics(done))
+    out["resolution"] = first.get("resolution")
+    out["flags"] = H.case_flags(out)
+    out["seeds"] = [{"seed": k, "status": statuses[k], "spinup_s": (s or {}).get("spinup_s"),
+                     "mean_abs_omega_rad_s": (s or {}).get("mean_abs_omega_rad_s"),
+                     "ci95_rad_s": (s or {}).get("ci95_rad_s"), "flags": (s or {}).get("flags") or []}
+                    for k, s in per_seed]
+    return out
+
+
+def _worst_diagnostics(done: list[tuple[int, dict]]) -> dict:
+    """Frozen, locked, health and spin-up of a case as its worst seed's, naming the seeds."""
+    fr = [(k, s.get("frozen") or {}) for k, s in done]
+    frozen_seeds = [k for k, f in fr if f.get("frozen")]
+    rem = [float(f["remaining"]) for _, f in fr if _finite(f.get("remaining"))]
+    frozen = {"frozen": bool(frozen_seeds), "seeds": frozen_seeds, "remaining": max(rem) if rem else None,
+              "threshold": next((f.get("threshold") for _, f in fr if f.get("threshold") is not None), None)}
+    lk = [(k, s.get("locked") or {}) for k, s in done]
+    locked_seeds = [k for k, d in lk if d.get("locked")]
+    kept = [float(d["neighbours_retained"]) for _, d in lk if _finite(d.get("neighbours_retained"))]
+    locked = {"locked": bool(locked_seeds), "seeds": locked_seeds, "column": any(d.get("column") for _, d in lk),
+              "neighbours_retained": max(kept) if kept else None}
+    issues, numbers = [], {}
+    for k, s in done:
+        h = s.get("health") or {}
+        issues += [f"seed {k}: {i}" for i in h.get("issues") or []]
+        for key, v in h.items():
+            if _finite(v):
+                numbers[key] = max(numbers.get(key, -math.inf), float(v), key=abs)
+    health = {**numbers, "issues": issues, "healthy": not issues}
+    sp = [(k, s.get("spinup") or {}) for k, s in done]
+    unsteady = [k for k, d in sp if d and not d.get("steady", True)]
+    spinup = {"steady": not unsteady, "seeds_not_steady": unsteady,
+              "spinup_s": max((float(d["spinup_s"]) for _, d in sp if _finite(d.get("spinup_s"))), default=None),
+              "required_s": max((float(d["required_s"]) for _, d in sp if _finite(d.get("required_s"))), default=None),
+              "message": "; ".join(f"seed {k}: {d.get('message')}" for k, d in sp if k in unsteady and d.get("message"))}
+    return {"frozen": frozen, "locked": locked, "health": health, "spinup": spinup}
+
+
+def combine_orientation(frames: list[pd.DataFrame]) -> pd.DataFrame:
+    """Orientation histograms averaged over the seeds: per (kind, bin) the mean fraction; the
+    bin's interval the larger of the seeds' standard error and the runs' own intervals combined."""
+    frames = [f for f in frames if f is not None and not f.empty]
+    if not frames:
+        return pd.DataFrame()
+    keys = [c for c in frames[0].columns if c not in ("fraction", "ci95")]
+    rows = []
+    for key, g in pd.concat(frames, ignore_index=True).groupby(keys, sort=False, dropna=False):
+        c = combine_means(list(g["fraction"]), list(g["ci95"]) if "ci95" in g else [None] * len(g))
+        rows.append({**dict(zip(keys, key if isinstance(key, tuple) else (key,))),
+                     "fraction": c["mean"], "ci95": c["ci95"] if c["ci95"] is not None else float("nan")})
+    return pd.DataFrame(rows, columns=list(frames[0].columns))
+
+
+def combine_profiles(frames: list[pd.DataFrame]) -> pd.DataFrame:
+    """Mean axial velocity profile over the seeds (same radial bins: same lattice and pipe)."""
+    frames = [f for f in frames if f is not None and not f.empty]
+    if not frames:
+        return pd.DataFrame(columns=["r_mm", "uz_m_s", "uz_poiseuille_m_s", "nodes"])
+    out = frames[0].copy()
+    out["uz_m_s"] = np.mean([f["uz_m_s"].to_numpy() for f in frames], axis=0)
+    return out
+
+
+def combine_summaries(case: str, per_seed: list[tuple[int, dict | None]]) -> dict:
+    """The case's ``summary.json``: status, the seeds' statuses, summed steps and seconds."""
+    ok = [s for _, s in per_seed if s]
+    statuses = {str(k): (s or {}).get("status", "not run") for k, s in per_seed}
+    status = ("completed" if ok and all(st == "completed" for st in statuses.values()) else
+              "unpackable" if ok and all(st == "unpackable" for st in statuses.values()) else
+              next((st for st in statuses.values() if st not in ("completed", "not run")), "not run"))
+    first = next((s for s in ok if s.get("status") == "completed"), ok[0] if ok else {})
+    msg = "; ".join(f"seed {k}: {st}" for k, st in statuses.items() if st != "completed")
+    return {"case": case, "status": status, "message": msg or first.get("message", ""),
+            "seeds": [{"seed": k, "status": statuses[str(k)], "message": (s or {}).get("message", ""),
+                       "packing": (s or {}).get("packing"), "steps": (s or {}).get("steps"),
+                       "wall_seconds": (s or {}).get("wall_seconds")} for k, s in per_seed],
+            "steps": int(sum(int(s.get("steps") or 0) for s in ok)),
+            "simulated_seconds": float(sum(float(s.get("simulated_seconds") or 0.0) for s in ok)),
+            "wall_seconds": float(sum(float(s.get("wall_seconds") or 0.0) for s in ok)),
+            "spinup_s": first.get("spinup_s"), "particles": first.get("particles"),
+            "packing": first.get("packing")}
+
+
+def write_combined(case: str, case_dir: Path, seeds) -> dict:
+    """Write the combined ``stats.json``, ``orientation.csv``, ``profile.csv`` and ``summary.json``
+    of ``case`` in ``case_dir`` from its ``seed<k>/`` runs; returns the combined stats."""
+    case_dir = Path(case_dir)
+    dirs = _seed_dirs(case_dir, seeds)
+    stats = combine_stats(case, [(k, H.read_json(d / "stats.json")) for k, d in dirs])
+    (case_dir / "stats.json").write_text(json.dumps(_jsonable(stats), indent=2) + "\n")
+
+    def _csv(p: Path):
+        try:
+            return pd.read_csv(p) if p.exists() else None
+        except pd.errors.EmptyDataError:
+            return None
+
+    combine_orientation([_csv(d / "orientation.csv") for _, d in dirs]).to_csv(case_dir / "orientation.csv", index=False)
+    combine_profiles([_csv(d / "profile.csv") for _, d in dirs]).to_csv(case_dir / "profile.csv", index=False)
+    summary = combine_summaries(case, [(k, H.read_json(d / "summary.json")) for k, d in dirs])
+    (case_dir / "summary.json").write_text(json.dumps(_jsonable(summary), indent=2) + "\n")
+    return stats
+
+
+def _jsonable(v):
+    if isinstance(v, dict):
+        return {str(k): _jsonable(x) for k, x in v.items()}
+    if isinstance(v, (list, tuple)):
+        return [_jsonable(x) for x in v]
+    if isinstance(v, (np.floating, float)):
+        return None if not math.isfinite(float(v)) else float(v)
+    if isinstance(v, np.integer):
+        return int(v)
+    if isinstance(v, np.bool_):
+        return bool(v)
+    return v
