@@ -1,0 +1,158 @@
+"""Several packings per case (lbmpipe.reproduction.seeds, the `seeds` key of a level): the
+combined interval holds the spread between packings as well as each run's own noise, diagnostics
+of any seed flag the case, and the pipeline runs each case once per packing seed."""
+
+from __future__ import annotations
+
+import json
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pandas as pd
+import pytest
+import yaml
+from scipy import stats as sps
+
+from lbmpipe.reproduction import seeds as S
+from lbmpipe.reproduction.cases import level_runs, packing_id, run_case, split_run
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def test_combined_interval_of_scattered_packings_is_the_t_interval_of_the_seed_means():
+    # three packings whose runs are each precise (half-width 0.01) but disagree by 0.1
+    c = S.combine_means([1.0, 1.1, 1.2], [0.01, 0.01, 0.01], [30, 30, 30])
+    se = pd.Series([1.0, 1.1, 1.2]).std(ddof=1) / 3 ** 0.5
+    assert c["mean"] == pytest.approx(1.1)
+    assert c["source"] == "between seeds" and c["dof"] == 2
+    assert c["ci95"] == pytest.approx(sps.t.ppf(0.975, 2) * se)
+    assert c["ci95"] > 10 * 0.01  # far wider than any one run's interval
+
+
+def test_packings_that_agree_by_chance_keep_each_runs_own_noise():
+    # identical means: the seeds' scatter is zero, the runs' noise is not
+    c = S.combine_means([2.0, 2.0, 2.0], [0.3, 0.3, 0.3], [1e6, 1e6, 1e6])
+    assert c["source"] == "within runs"
+    # the mean of three independent runs, each with standard error 0.3/1.96
+    assert c["ci95"] == pytest.approx(0.3 / 3 ** 0.5, rel=1e-3)
+
+
+def test_a_single_packing_gives_its_own_interval_and_no_seed_spread():
+    c = S.combine_means([0.5], [0.05], [40])
+    assert c["n_seeds"] == 1 and c["between_se"] is None
+    assert c["ci95"] == pytest.approx(0.05, rel=1e-9)
+
+
+def _seed_stats(mean, ci, frozen=False, issues=(), steady=True):
+    iv = {a: {"mean": mean, "ci95": ci, "dof": 40, "sufficient": True, "required_s": 10.0, "duration_s": 20.0}
+          for a in "xyz"}
+    return {"case": "c", "status": "completed", "shape": "cube", "size_label": "8 mm", "reynolds": 9.4,
+            "concentration": 0.3, "collisions": True, "n_particles": 100, "samples": 500, "spinup_s": 3.0,
+            "mean_abs_omega_rad_s": {a: mean for a in "xyz"}, "ci95_rad_s": {a: ci for a in "xyz"},
+            "omega_intervals": iv, "tau_int_s": {a: 0.1 for a in "xyz"},
+            "orientation": {"cube_axis_angle": {"mean_deg": 30.0 + mean, "ci95_deg": 1.0, "median_deg": 29.0,
+                                                "interval": {"dof": 20}}},
+            "orientation_memory": {"tau_orient_s": 0.5},
+            "orientation_order": {"mean": 0.1, "ci95": 0.01, "dof": 20},
+            "frozen": {"frozen": frozen, "remaining": 0.8 if frozen else 0.1, "threshold": 0.5},
+            "locked": {"locked": False, "column": False, "neighbours_retained": 0.3},
+            "health": {"issues": list(issues), "max_overlap_lu": 0.02, "healthy": not issues},
+            "spinup": {"steady": steady, "spinup_s": 3.0, "required_s": 2.9, "message": "" if steady else "drifts"},
+            "resolution": {"lattice_spacings": 8.0}, "flags": []}
+
+
+def test_a_case_is_frozen_unhealthy_or_unsteady_when_any_packing_is_and_names_the_seed():
+    per = [(1, _seed_stats(1.0, 0.02)), (2, _seed_stats(1.05, 0.02, frozen=True, issues=["mass drift"])),
+           (3, _seed_stats(0.95, 0.02, steady=False))]
+    out = S.combine_stats("c", per)
+    assert out["status"] == "completed" and out["n_seeds"] == 3 and out["samples"] == 1500
+    assert set(out["flags"]) == {"frozen", "unhealthy", "not steady"}
+    assert out["frozen"]["seeds"] == [2] and out["spinup"]["seeds_not_steady"] == [3]
+    assert out["health"]["issues"] == ["seed 2: mass drift"]
+    assert out["mean_abs_omega_rad_s"]["x"] == pytest.approx(1.0)
+    assert out["seed_spread_rel"]["x"] == pytest.approx(0.05)
+    assert [s["seed"] for s in out["seeds"]] == [1, 2, 3]
+
+
+def test_a_seed_not_yet_run_is_left_out_of_the_mean_and_counted():
+    out = S.combine_stats("c", [(1, _seed_stats(1.0, 0.02)), (2, None), (3, _seed_stats(1.2, 0.02))])
+    assert out["n_seeds"] == 2 and out["seed_status"] == {"1": "completed", "2": "not run", "3": "completed"}
+    assert out["mean_abs_omega_rad_s"]["z"] == pytest.approx(1.1)
+
+
+def test_combined_files_average_histograms_and_profiles_over_the_seeds(tmp_path):
+    case = tmp_path / "cube8_c30_re9.4"
+    for k, (mean, frac) in enumerate([(1.0, 0.2), (1.2, 0.4)], start=1):
+        d = case / f"seed{k}"
+        d.mkdir(parents=True)
+        (d / "stats.json").write_text(json.dumps(_seed_stats(mean, 0.02)))
+        pd.DataFrame({"kind": ["cube_axis_angle"] * 2, "bin_lo_deg": [0.0, 10.0], "bin_hi_deg": [10.0, 20.0],
+                      "fraction": [frac, 1 - frac], "ci95": [float("nan")] * 2}).to_csv(d / "orientation.csv", index=False)
+        pd.DataFrame({"r_mm": [1.0, 2.0], "uz_m_s": [mean, mean / 2], "uz_poiseuille_m_s": [1.0, 0.5],
+                      "nodes": [4, 8]}).to_csv(d / "profile.csv", index=False)
+        (d / "summary.json").write_text(json.dumps({"status": "completed", "steps": 100, "wall_seconds": 5.0,
+                                                    "simulated_seconds": 1.0}))
+    S.write_combined("cube8_c30_re9.4", case, [1, 2])
+    h = pd.read_csv(case / "orientation.csv")
+    assert h["fraction"].tolist() == pytest.approx([0.3, 0.7])
+    assert (h["ci95"] > 0).all()  # the seeds' scatter is the bins' interval
+    assert pd.read_csv(case / "profile.csv")["uz_m_s"].tolist() == pytest.approx([1.1, 0.55])
+    summary = json.loads((case / "summary.json").read_text())
+    assert summary["status"] == "completed" and summary["steps"] == 200
+    assert json.loads((case / "stats.json").read_text())["n_seeds"] == 2
+
+
+def _config():
+    return yaml.safe_load((ROOT / "config.yaml").read_text())
+
+
+def test_a_level_with_seeds_runs_every_particle_case_once_per_packing_and_flows_once():
+    config = _config()
+    config["fidelities"]["smoke"]["seeds"] = 3
+    runs = level_runs(config, "smoke")
+    particle = [c for c, v in config["cases"].items() if v.get("particles")]
+    assert len(runs) == 3 * len(particle) + len(config["cases"]) - len(particle)
+    assert "flow_re9.4" in runs and "cyl8x8_c30_re9.4/seed3" in runs
+    assert split_run("cyl8x8_c30_re9.4/seed2") == ("cyl8x8_c30_re9.4", 2)
+    ids = {packing_id(run_case(config, f"cyl8x8_c30_re9.4/seed{k}")[1]) for k in (1, 2, 3)}
+    assert ids == {"cyl8x8_c30_s1", "cyl8x8_c30_s2", "cyl8x8_c30_s3"}
+    # the Re 9.4 and Re 26 runs of one seed start from the same packing
+    assert packing_id(run_case(config, "cyl8x8_c30_re26/seed2")[1]) == "cyl8x8_c30_s2"
+
+
+def _snakemake() -> str:
+    return shutil.which("snakemake", path=str(Path(sys.executable).parent)) or "snakemake"
+
+
+def test_seeded_level_dag_runs_each_seed_and_combines_them_per_case(tmp_path):
+    config = _config()
+    config["fidelities"]["smoke"]["seeds"] = 2
+    cfg = tmp_path / "config.yaml"
+    cfg.write_text(yaml.safe_dump(config, sort_keys=False))
+    run = subprocess.run([_snakemake(), "-n", "--nolock", "--configfile", str(cfg), "--config", "fidelity=smoke",
+                          "new_runs=all", "--quiet", "rules"], cwd=ROOT, capture_output=True, text=True, timeout=300)
+    assert run.returncode == 0, run.stderr[-2000:]
+    counts = dict(line.split()[:2][::-1] for line in run.stdout.splitlines()
+                  if len(line.split()) == 2 and line.split()[1].isdigit())
+    particle = sum(1 for v in config["cases"].values() if v.get("particles"))
+    assert int(counts["simulate_particles"]) == 2 * particle
+    assert int(counts["combine_seeds"]) == particle
+
+
+@pytest.mark.skipif(not (ROOT / ".git").exists() or shutil.which("git") is None, reason="needs the git repository")
+def test_fresh_clone_regenerates_the_committed_level_without_running_a_simulation(tmp_path):
+    """What a newcomer's `snakemake -c2` plans on a fresh clone of the committed tree (arbitrary
+    mtimes, no Snakemake metadata): figures, tables, claims and the document, no packing,
+    simulation, statistics of a trajectory, study run or stability suite."""
+    clone = tmp_path / "clone"
+    subprocess.run(["git", "clone", "-q", str(ROOT), str(clone)], check=True, timeout=300)
+    run = subprocess.run([_snakemake(), "-n", "--quiet", "rules"], cwd=clone, capture_output=True, text=True,
+                         timeout=600)
+    assert run.returncode == 0, run.stderr[-2000:]
+    planned = {line.split()[0] for line in run.stdout.splitlines()
+               if len(line.split()) == 2 and line.split()[1].isdigit()}
+    costly = {"pack", "simulate_particles", "simulate_flow", "statistics", "study_run", "study_warmup",
+              "stability_table"}
+    assert not planned & costly, run.stdout
