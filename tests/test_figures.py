@@ -294,3 +294,14 @@ def test_report_captions_are_the_figure_captions_and_say_the_experimental_data_a
         assert rst.replace("\\|", "|") == F.FIGURE_CAPTIONS[stem], stem
     for stem in ("fig4_cylinders_re26", "fig8_cylinder_orientation", "fig9_cube_orientation"):
         assert "Zitoun et al. 2001" in F.FIGURE_CAPTIONS[stem] and "not drawn" in F.FIGURE_CAPTIONS[stem]
+
+
+def test_snapshot_gallery_tiles_the_snapshots_present_and_writes_nothing_without_any(tmp_path):
+    figs = tmp_path / "figures"
+    figs.mkdir()
+    for case in ("a", "b", "c"):
+        F.plt.imsave(figs / f"fig3_{case}.png", np.full((20, 10, 3), 0.5))
+    out = F.snapshot_gallery(tmp_path, ["a", "missing", "b", "c"], ncols=2)
+    assert out == figs / "fig3_gallery.png" and out.is_file()
+    assert F.snapshot_gallery(tmp_path, ["missing"], tmp_path / "none.png") is None
+    assert not (tmp_path / "none.png").exists()

@@ -213,3 +213,48 @@ def test_document_command_without_results_names_the_pipeline_command_and_fails(t
     assert run_cli(["document", "--fidelity", "nosuch", "--root", str(tmp_path)]) == EXIT_FAILED
     assert "snakemake -c2 --config fidelity=nosuch" in capsys.readouterr().err
     assert not (tmp_path / "paper").exists()  # nothing written
+
+
+# ---------------------------------------------------------------- the document of the committed results
+
+
+@pytest.fixture(scope="module")
+def committed_document(tmp_path_factory):
+    """The document and page of the committed ``results/paper``, built into a temporary folder."""
+    if not (REPO / "results" / "paper" / "claims.csv").is_file():
+        pytest.skip("results/paper/claims.csv is not in this checkout")
+    config = yaml.safe_load((REPO / "config.yaml").read_text())
+    out = tmp_path_factory.mktemp("doc") / "reproduction_paper.md"
+    md, stale = literate.build_checked_document(REPO, "paper", config, out_md=out)
+    return md, stale
+
+
+def test_committed_document_has_the_structure_of_a_paper_with_a_short_main_text(committed_document):
+    md, stale = committed_document
+    assert stale == []
+    text = md.read_text()
+    assert literate.word_count(literate.main_text(text)) < 4000
+    sections = re.findall(r"^## (.+)$", text, flags=re.M)
+    main = ["Abstract", "Method"] + [f"Fig. {k}:" for k in ("4", "5", "6", "7", "8", "9", "10")] + [
+        "Claims summary", "Limitations", "Run health"]
+    assert len(sections) > len(main)
+    assert all(s.startswith(m) for s, m in zip(sections, main)), sections
+    assert all(s.startswith("Appendix") for s in sections[len(main):]), sections
+
+
+def test_committed_document_anchors_each_claim_once_and_shows_one_snapshot_gallery(committed_document):
+    md, _ = committed_document
+    text, page = md.read_text(), md.with_suffix(".html").read_text()
+    claims_csv = pd.read_csv(REPO / "results" / "paper" / "claims.csv")
+    anchors = re.findall(r'\sid="(claim-\d+)"', page)
+    assert sorted(anchors) == sorted(f"claim-{c}" for c in claims_csv["claim"])
+    snapshots = re.findall(r"!\[[^\]]*\]\(([^)]*fig3_[^)]*)\)", text)
+    assert len(snapshots) == 1 and snapshots[0].endswith("figures/fig3_gallery.png")
+    assert (md.parent / snapshots[0]).resolve().is_file()
+    # the key equations are displayed maths, converted to MathML
+    assert page.count('display="block"') >= len(literate.KEY_EQUATIONS)
+
+
+def test_word_count_leaves_out_link_targets_and_table_rules():
+    assert literate.word_count("| a | b |\n| --- | --- |\n[two words](../x.py#L3 \"Eq. 3: f\")") == 4
+    assert literate.main_text("intro\n## Appendix A: x\nmore") == "intro\n"

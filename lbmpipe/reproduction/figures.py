@@ -142,6 +142,30 @@ def _sel(shape, size_label, concentration, reynolds, collisions=True) -> dict:
             "collisions": collisions}
 
 
+#: The cases each figure of the paper shows, by their metadata (Figs. 4-6 as drawn by
+#: :func:`make_figures`, 7a/7b by :func:`shape_size_bars`, 8 by :func:`cylinder_orientation`, 9 by
+#: :func:`cube_orientation`, 10 the particle case of :func:`make_figures`; Fig. 7 lists both panels).
+FIGURE_CASES: dict[str, list[dict]] = {
+    "4": [_sel("cylinder", s, 0.30, 26.0) for s in ("16x16 mm", "16x24 mm")],
+    "5": [_sel("cube", "8 mm", c, 9.4) for c in (0.30, 0.50)],
+    "6": [_sel("cube", "24 mm", 0.30, r) for r in (9.4, 26.0)],
+    "7": [_sel(shape, s, 0.30, r) for r in (9.4, 26.0)
+          for shape, s in (("cube", "8 mm"), ("cube", "16 mm"), ("cube", "24 mm"), ("cylinder", "8x8 mm"),
+                           ("cylinder", "16x16 mm"))],
+    "8": [_sel("cylinder", s, 0.30, r) for r in (9.4, 26.0) for s in ("8x8 mm", "8x16 mm", "16x16 mm", "16x24 mm")],
+    "9": [_sel("cube", s, 0.30, r) for r in (9.4, 26.0) for s in ("8 mm", "16 mm", "24 mm")],
+    "10": [_sel("cylinder", "16x16 mm", 0.30, 26.0)],
+}
+
+
+def figure_cases(table, key: str) -> list[str]:
+    """Names of the cases of ``table`` (a table with case metadata) that Fig. ``key`` shows
+    (:data:`FIGURE_CASES`), in the figure's order."""
+    t = _table(table)
+    names = [str(c) for crit in FIGURE_CASES.get(key, []) for c in _select(t, **crit).get("case", [])]
+    return list(dict.fromkeys(names))
+
+
 #: Hatch of the bars of a flagged case.
 FLAG_HATCH = "////"
 
@@ -704,6 +728,32 @@ def snapshots(fid_dir: Path, cases: dict, fidelity: str | None = None, run: str 
             continue
         out.append(snapshot(case_dir, png.with_suffix(""), title=label))
     return out
+
+
+def snapshot_gallery(fid_dir: Path, cases, out_png: Path | None = None, ncols: int = 6) -> Path | None:
+    """One image tiling the snapshots ``fid_dir/figures/fig3_<case>.png`` of ``cases`` (names, in
+    order; those without a PNG are left out), each titled with its case name, into ``out_png``
+    (default ``fid_dir/figures/fig3_gallery.png``). Returns the path, or None when no snapshot
+    exists (nothing is written)."""
+    fig_dir = Path(fid_dir) / "figures"
+    found = [(c, fig_dir / f"fig3_{c}.png") for c in cases]
+    found = [(c, p) for c, p in found if p.is_file()]
+    if not found:
+        return None
+    out_png = Path(out_png) if out_png is not None else fig_dir / "fig3_gallery.png"
+    ncols = max(1, min(ncols, len(found)))
+    nrows = -(-len(found) // ncols)
+    fig, axs = plt.subplots(nrows, ncols, figsize=(2.2 * ncols, 2.35 * nrows), squeeze=False)
+    for ax in axs.flat:
+        ax.axis("off")
+    for ax, (case, png) in zip(axs.flat, found):
+        ax.imshow(plt.imread(png))
+        ax.set_title(case, fontsize=7)
+    fig.tight_layout(pad=0.3)
+    out_png.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(out_png, dpi=120)
+    plt.close(fig)
+    return out_png
 
 
 # ----------------------------------------------------------------------------------------------

@@ -11,7 +11,12 @@ definition and that its docstring still cites the equation.
 Document. :func:`build_document` renders ``paper/reproduction.md.j2`` (Jinja2) from a results
 directory ``results/<fid>/``. The template receives data only: every number in the text is read
 from the results (or derived from ``config.yaml`` through :func:`lbmpipe.units.derive`); a section
-whose input is absent says ``not built at this level: <file> missing``. The web page beside it
+whose input is absent says ``not built at this level: <file> missing``. It is laid out as a paper:
+an abstract with the verdict in numbers, the method (the key equations as displayed maths beside a
+short excerpt of their code, :data:`KEY_EQUATIONS`; Fig. 3 as one gallery of the snapshots), one
+section per figure of the paper (what the paper says, what we see, why: the measured diagnostics of
+its cases), the claims in one line each, the limitations and the run health; the long tables
+follow as appendices (:func:`main_text` is everything before them). The web page beside it
 (``.html``: maths as MathML, contents, anchors per claim and figure) is :mod:`lbmpipe.reproduction.webpage`'s.
 """
 
@@ -507,7 +512,7 @@ def health_section(fid_dir: Path, config: dict) -> dict:
              "mass correction.")
     note = (f"Frozen, locked and steady: {health.NOT_COMPUTED} ({', '.join(f'`{c}`' for c in stale)})."
             if stale else "")
-    return {"table": table_of(pd.DataFrame(rows, columns=cols)), "intro": intro, "note": note}
+    return {"table": table_of(pd.DataFrame(rows, columns=cols)), "intro": intro, "note": note, "rows": rows}
 
 
 def study_section(fid_dir: Path, out_dir: Path) -> dict:
@@ -537,6 +542,305 @@ def study_section(fid_dir: Path, out_dir: Path) -> dict:
     return sec
 
 
+# --------------------------------------------------------------------------------------------------
+# the paper-shaped document: key equations beside their code, one section per figure, the verdict
+
+#: Key equations shown as display maths beside a short excerpt of the code: (equations, module,
+#: qualname whose docstring cites them (the link), excerpt qualname, first line of the excerpt
+#: (regex), number of lines). The excerpt may sit in a helper the cited definition calls.
+KEY_EQUATIONS: list[tuple[tuple[int, ...], str, str, str, str, int]] = [
+    ((8,), "lbmpipe/fluid/boundaries.py", "fill_moving_bounce_back", "fill_moving_bounce_back",
+     r"for k in prange", 2),
+    ((9, 10, 11, 12), "lbmpipe/particles/coupling.py", "fixed_fill", "fixed_fill", r"fx_ \+= 2\.0 \* ex \* sf", 6),
+    ((13,), "lbmpipe/particles/rigid.py", "kick_angular_arrays", "kick_angular_arrays", r"tb = _rot\(", 4),
+    ((14, 15), "lbmpipe/particles/rigid.py", "drift", "_free_rotate", r"ch = math\.cos\(0\.5", 6),
+    ((19,), "lbmpipe/particles/collisions.py", "_gs_sweep", "_gs_sweep", r"vn = _normal_velocity\(i,", 6),
+    ((21,), "lbmpipe/particles/collisions.py", "_wall_terms", "_wall_terms", r"a10, a11, a12, t1 = _body_terms", 6),
+]
+
+#: Which of the paper's claims each figure section discusses (NOTES.md: the claims and the figures they rest on).
+FIGURE_CLAIMS: dict[str, list[int]] = {"4": [1, 3], "5": [4, 5], "6": [6], "7": [2, 7, 8], "8": [9, 10, 14],
+                                       "9": [11, 12], "10": [13]}
+
+#: Heading of each figure section (what the figure varies).
+FIGURE_TITLES: dict[str, str] = {
+    "4": "cylinder aspect ratio and rotation", "5": "cube concentration and rotation",
+    "6": "Reynolds number and cube rotation", "7": "particle shape and size", "8": "cylinder orientation",
+    "9": "cube orientation", "10": "velocity profile",
+}
+
+
+def display_latex(n: int) -> str:
+    """The LaTeX of Eq. (n) for display: the formulas of :data:`EQUATIONS` joined by a wide space."""
+    parts = re.findall(r"\$([^$]+)\$", EQUATIONS[n])
+    return r",\qquad ".join(p.strip() for p in parts)
+
+
+#: Labels of the key equations whose statement in :data:`EQUATIONS` ends without one.
+EQUATION_LABELS: dict[int, str] = {
+    3: "equilibrium distribution", 4: "density and momentum", 5: "weakly compressible Navier-Stokes: mass",
+    6: "weakly compressible Navier-Stokes: momentum, viscosity", 14: "orientation as a unit quaternion (Evans 1977)",
+    15: "quaternion kinematics", 16: "collision impulse: translation", 18: "collision impulse: rotation",
+    19: "collision impulse of two particles", 20: "rotation matrix of the quaternion"}
+
+
+def equation_label(n: int) -> str:
+    """The closing parenthesis of :data:`EQUATIONS` (e.g. "Ladd's moving bounce-back"), else
+    :data:`EQUATION_LABELS`, else ''."""
+    m = re.search(r"\(([^()$]*)\)\s*$", EQUATIONS[n])
+    return m.group(1) if m else EQUATION_LABELS.get(n, "")
+
+
+def _def_node(tree: ast.Module, qualname: str):
+    for qual, node, _ in _docstring_owners(tree):
+        if qual == qualname:
+            return node
+    return None
+
+
+def code_excerpt(repo_root: Path, module: str, qualname: str, start: str, n_lines: int) -> tuple[int, str] | None:
+    """``n_lines`` lines of ``qualname`` in ``module`` from the first matching ``start`` (regex),
+    dedented: (line number, text); None when the definition or the line is gone."""
+    path = Path(repo_root) / module
+    if not path.is_file():
+        return None
+    source = path.read_text(encoding="utf-8")
+    node = _def_node(ast.parse(source), qualname)
+    if node is None:
+        return None
+    lines = source.splitlines()
+    for ln in range(node.lineno, node.end_lineno + 1):
+        if re.search(start, lines[ln - 1]):
+            chunk = lines[ln - 1: min(ln - 1 + n_lines, node.end_lineno)]
+            indent = min(len(s) - len(s.lstrip()) for s in chunk if s.strip())
+            return ln, "\n".join(s[indent:] for s in chunk)
+    return None
+
+
+def key_equations(repo_root: Path, out_dir: Path, index: dict[int, list[Ref]]) -> list[dict]:
+    """Display maths, source link and code excerpt of each :data:`KEY_EQUATIONS` entry."""
+    out = []
+    for numbers, module, linked, excerpt_of, start, n_lines in KEY_EQUATIONS:
+        refs = [r for n in numbers for r in index.get(n, []) if r.module == module and r.qualname == linked]
+        ex = code_excerpt(repo_root, module, excerpt_of, start, n_lines)
+        target = os.path.relpath(Path(repo_root).resolve() / module, Path(out_dir).resolve()).replace(os.sep, "/")
+        out.append({
+            "numbers": ", ".join(f"({n})" for n in numbers),
+            "label": "; ".join(lb for lb in (equation_label(n) for n in numbers) if lb),
+            "latex": [display_latex(n) for n in numbers],
+            "link": _link(refs[0], numbers[0], repo_root, out_dir) if refs else None,
+            "linked": linked,
+            "excerpt": ex[1] if ex else None,
+            "excerpt_link": f"[{module}:L{ex[0]}]({target}#L{ex[0]})" if ex else None,
+            "excerpt_of": excerpt_of,
+        })
+    return out
+
+
+def other_equations(groups: list[dict]) -> list[dict]:
+    """The equations not in :data:`KEY_EQUATIONS`, each with its first source link (all links: the appendix)."""
+    key = {n for entry in KEY_EQUATIONS for n in entry[0]}
+    rows = []
+    for g in groups:
+        for eq in g["equations"]:
+            if eq["number"] not in key:
+                first = eq["links"][0]["link"] if eq["links"] else "**no docstring cites this equation**"
+                rows.append({"number": eq["number"], "label": equation_label(eq["number"]), "link": first,
+                             "more": len(eq["links"]) - 1})
+    return rows
+
+
+def main_text(md: str) -> str:
+    """The document before its first appendix heading (``## Appendix ...``)."""
+    m = re.search(r"^## Appendix", md, flags=re.M)
+    return md[:m.start()] if m else md
+
+
+def word_count(md: str) -> int:
+    """Words of Markdown text: link targets and titles, image paths and table rules left out; a
+    word is a whitespace-separated token with a letter or digit."""
+    text = re.sub(r"\]\([^)]*\)", "]", md)
+    return sum(1 for tok in text.split() if re.search(r"[A-Za-z0-9]", tok))
+
+
+def _case_dirs(fid_dir: Path, config: dict) -> dict[str, dict]:
+    """Per case of the config: its summary.json and stats.json (None where absent)."""
+    from . import health
+
+    out = {}
+    for name in config.get("cases") or {}:
+        cdir = Path(fid_dir) / "cases" / name
+        out[name] = {"summary": health.read_json(cdir / "summary.json"), "stats": health.read_json(cdir / "stats.json")}
+    return out
+
+
+def averaging_s(summary: dict | None, stats: dict | None) -> float:
+    """Simulated time averaged after spin-up of a case (s): run length minus spin-up; NaN if not run."""
+    if not summary or summary.get("status") != "completed":
+        return float("nan")
+    spin = (stats or {}).get("spinup_s", summary.get("spinup_s", 0.0))
+    spin = spin.get("spinup_s", 0.0) if isinstance(spin, dict) else spin
+    return float(summary.get("simulated_seconds", float("nan"))) - float(spin or 0.0)
+
+
+def _short_reason(reason: str) -> tuple[str, int]:
+    """A claim's reason without its list of missing cases, and how many cases are missing."""
+    parts = str(reason).split("; ")
+    idx = next((k for k, p in enumerate(parts) if p.startswith("missing:")), len(parts))
+    text = "; ".join(parts[:idx])
+    if len(text) > 160:  # e.g. a list of bins per case: the appendix has it all
+        text = text[:160].rsplit(",", 1)[0] + " … (appendix)"
+    return text, len(parts) - idx
+
+
+def claims_summary(claims) -> list[dict]:
+    """One row per claim: number, statement, verdict, the deciding number (the first clause of
+    ``values``: the pooled difference or the single comparison) and the reason, shortened."""
+    rows = []
+    for r in claims.to_dict("records"):
+        reason, n_missing = _short_reason(r.get("reason", ""))
+        if n_missing:
+            reason += f" ({n_missing} case{'s' if n_missing > 1 else ''} missing)"
+        rows.append({"claim": fmt(r["claim"]), "statement": str(r.get("statement", "")),
+                     "verdict": str(r.get("verdict", "")),
+                     "number": str(r.get("values", "")).split("; ")[0].split(" over ")[0],
+                     "reason": reason})
+    return rows
+
+
+def abstract_section(fid_dir: Path, fidelity: str, config: dict, claims, params: list[dict],
+                     cases: dict[str, dict], health_rows: list[dict]) -> dict:
+    """The verdict in numbers: claim counts, the particle-free flow against Hagen-Poiseuille, the
+    lattice, the averaging time and the packings the results rest on."""
+    counts = claims["verdict"].value_counts().to_dict() if claims is not None and "verdict" in claims else {}
+    particle = [n for n, c in (config.get("cases") or {}).items() if (c or {}).get("particles")]
+    flow = [n for n, c in (config.get("cases") or {}).items() if not (c or {}).get("particles")]
+    poiseuille = [f"{fmt((config['cases'][n] or {}).get('reynolds'))}: "
+                  f"{fmt(cases[n]['summary'].get('profile_error_rel_l2'))}"
+                  for n in flow if cases.get(n, {}).get("summary")
+                  and cases[n]["summary"].get("profile_error_rel_l2") is not None]
+    avg = [averaging_s(cases[n]["summary"], cases[n]["stats"]) for n in particle if n in cases]
+    avg = [a for a in avg if math.isfinite(a)]
+    seeds = [int(s["n_seeds"]) for n in particle for s in [cases.get(n, {}).get("stats") or {}] if "n_seeds" in s]
+    status = {}
+    for n in particle:
+        st = (cases.get(n, {}).get("summary") or {}).get("status", "not run")
+        status[st] = status.get(st, 0) + 1
+    lattice = [p for p in params if p["fidelity"] == fidelity]
+    flagged = sum(1 for r in health_rows if r["flags"] not in ("none", ""))
+    # resolution: lattice spacings across the smallest particle dimension of the level
+    dx = ((config.get("fidelities") or {}).get(fidelity) or {}).get("dx_mm")
+    dims = [float(v) for n in particle for k, v in ((config["cases"][n] or {}).get("particles") or {}).items()
+            if k in ("diameter_mm", "length_mm", "edge_mm")]
+    return {
+        "n_claims": fmt(sum(counts.values())),
+        "counts": ", ".join(f"{fmt(int(v))} {k}" for k, v in sorted(counts.items(), key=lambda kv: -kv[1])),
+        "poiseuille": "; ".join(f"Re {p}" for p in poiseuille),
+        "lattice": "; ".join(f"Re {p['reynolds']}: dx {p['dx_mm']} mm, dt {p['dt_ms']} ms, τ {p['tau']}, "
+                             f"Mach {p['mach']}" for p in lattice),
+        "n_particle_cases": fmt(len(particle)),
+        "status": ", ".join(f"{fmt(v)} {k}" for k, v in sorted(status.items(), key=lambda kv: -kv[1])),
+        "avg_min": fmt(min(avg)) if avg else "–", "avg_max": fmt(max(avg)) if avg else "–",
+        "avg_median": fmt(float(sorted(avg)[len(avg) // 2])) if avg else "–",
+        "seeds": (f"{fmt(min(seeds))}–{fmt(max(seeds))}" if seeds and min(seeds) != max(seeds)
+                  else fmt(seeds[0]) if seeds else None),
+        "n_flagged": fmt(flagged), "n_health": fmt(len(health_rows)),
+        "min_spacings": fmt(min(dims) / float(dx)) if dims and dx else None, "dx": fmt(dx),
+    }
+
+
+def _figure_case_names(key: str, av, config: dict) -> list[str]:
+    """Cases a figure shows, by their metadata in ``angular_velocity.csv`` (the selections of
+    :data:`lbmpipe.reproduction.figures.FIGURE_CASES`); Fig. 10 adds the particle-free flow, the figure
+    of claim 14 the cases with collisions off."""
+    from .figures import figure_cases
+
+    names = figure_cases(av, key) if av is not None else []
+    if key == "10":
+        names += [n for n, c in (config.get("cases") or {}).items()
+                  if not (c or {}).get("particles") and float((c or {}).get("reynolds", 0)) == 26.0]
+    if 14 in FIGURE_CLAIMS.get(key, []):  # claim 14 compares with the same packing, collisions off
+        names += [n for n, c in (config.get("cases") or {}).items()
+                  if (c or {}).get("particles") and (c or {}).get("collisions") is False]
+    return list(dict.fromkeys(names))
+
+
+def _omega_line(row: dict) -> str:
+    return (f"`{row['case']}` |Ω| x, y, z = {fmt(row['omega_x'])} ± {fmt(row['ci_x'])}, "
+            f"{fmt(row['omega_y'])} ± {fmt(row['ci_y'])}, {fmt(row['omega_z'])} ± {fmt(row['ci_z'])} rad/s")
+
+
+def first_sentence(text: str) -> str:
+    """The first sentence of a caption (the rest stays in the figure files' captions)."""
+    return re.split(r"(?<=\.)\s+(?=[A-Z])", text.strip(), maxsplit=1)[0]
+
+
+def figure_sections(fid_dir: Path, out_dir: Path, config: dict, claims_rows: list[dict],
+                    cases: dict[str, dict], health_rows: list[dict]) -> list[dict]:
+    """One section per paper figure (Figs. 4-10): the paper's caption and claims, our figures with the
+    numbers that decide (the bars of Figs. 4-6, the profile errors of Fig. 10, the deciding number
+    of each claim), and why, from the measured diagnostics of the cases the figure shows."""
+    fid_dir = Path(fid_dir)
+    av = _read_csv(fid_dir / "tables" / "angular_velocity.csv")
+    entries = figure_entries(fid_dir, out_dir)
+    by_claim = {r["claim"]: r for r in claims_rows}
+    health_by_case = {r["case"]: r for r in health_rows}
+    out = []
+    for key, title in FIGURE_TITLES.items():
+        figs = [e for e in entries if e["key"] in (key, key + "a", key + "b")]
+        names = _figure_case_names(key, av, config)
+        numbers = []
+        if key in ("4", "5", "6") and av is not None:
+            numbers = [_omega_line(r) for r in av[av["case"].isin(names)].to_dict("records")]
+        elif key == "10":
+            numbers = [f"`{n}`: relative L2 difference from the Hagen-Poiseuille parabola "
+                       f"{fmt(cases[n]['summary'].get('profile_error_rel_l2'))}"
+                       for n in names if cases.get(n, {}).get("summary")]
+        claims_here = [by_claim[fmt(c)] for c in FIGURE_CLAIMS.get(key, []) if fmt(c) in by_claim]
+        # why: the flags and run-health issues measured for the cases of this figure
+        why, not_computed = [], []
+        for n in names:
+            h = health_by_case.get(n)
+            if h is None:
+                continue
+            if h["status"] not in ("completed",):
+                why.append(f"`{n}` {h['status']}")
+            elif h["flags"] not in ("none", ""):
+                why.append(f"`{n}` {h['flags']}" + (f" ({h['issues']})" if h["issues"] else ""))
+            if h.get("frozen") == "not computed":
+                not_computed.append(n)
+        avg = [averaging_s(cases[n]["summary"], cases[n]["stats"]) for n in names if n in cases]
+        avg = [a for a in avg if math.isfinite(a)]
+        out.append({
+            "key": key, "title": title, "figures": figs,
+            "paper_caption": PAPER_CAPTIONS.get(key, PAPER_CAPTIONS.get(key + "a", "")),
+            "claims": claims_here, "numbers": numbers, "cases": names,
+            "why": why, "n_clean": fmt(sum(1 for n in names if n in health_by_case) - len(why)),
+            "not_computed": fmt(len(not_computed)) if not_computed else None,
+            "avg": (f"{fmt(min(avg))}–{fmt(max(avg))}" if min(avg) != max(avg) else fmt(avg[0])) if avg else None,
+            "diagnosed": [c for c in claims_here if "likely:" in c["reason"]],
+        })
+    return out
+
+
+def health_summary_table(fid_dir: Path, config: dict, health_rows: list[dict], cases: dict[str, dict]) -> dict:
+    """The run-health table of the main text: one row per case, short columns."""
+    import pandas as pd
+
+    pk = _read_csv(Path(fid_dir) / "tables" / "packing.csv")
+    achieved = {} if pk is None else dict(zip(pk["case"], pk.get("concentration_achieved", [])))
+    rows = []
+    for r in health_rows:
+        c = cases.get(r["case"], {})
+        summ = c.get("summary") or {}
+        ach = achieved.get(r["case"], (summ.get("particles") or {}).get("concentration_achieved"))
+        rows.append({"case": r["case"], "status": r["status"],
+                     "achieved (%)": 100 * ach if ach is not None else None,
+                     "averaged (s)": averaging_s(summ, c.get("stats")),
+                     "max abs(ρ-1)": r["density_deviation_max"], "flags": r["flags"]})
+    return table_of(pd.DataFrame(rows))
+
+
 def build_context(repo_root: Path, fid_dir: Path, fidelity: str, config: dict, out_md: Path) -> dict:
     """Everything the template shows, read from the results and the config (no literal numbers)."""
     repo_root, fid_dir, out_dir = Path(repo_root), Path(fid_dir), Path(out_md).parent
@@ -559,7 +863,23 @@ def build_context(repo_root: Path, fid_dir: Path, fidelity: str, config: dict, o
     # A level on another level's lattice shows that level's stability suite and study (study_level).
     study_dir = fid_dir.parent / study_level(config, fidelity)
     stability = _read_csv(study_dir / "tables" / "stability.csv")
+    health_ctx = health_section(fid_dir, config)
+    case_data = _case_dirs(fid_dir, config)
+    claim_rows = claims_summary(claims) if claims is not None else []
+    particle_cases = [n for n, c in (config.get("cases") or {}).items() if (c or {}).get("particles")]
+    from .figures import snapshot_gallery
+
+    gallery = snapshot_gallery(fid_dir, particle_cases)  # Fig. 3: one tiled image of the snapshots
     return {
+        "abstract": abstract_section(fid_dir, fidelity, config, claims, params, case_data, health_ctx["rows"]),
+        "key_equations": key_equations(repo_root, out_dir, equation_index(repo_root / "lbmpipe")),
+        "other_equations": other_equations(groups),
+        "figure_sections": figure_sections(fid_dir, out_dir, config, claim_rows, case_data, health_ctx["rows"]),
+        "claims_summary": claim_rows,
+        "health_summary": health_summary_table(fid_dir, config, health_ctx["rows"], case_data),
+        "gallery": os.path.relpath(gallery.resolve(), out_dir.resolve()).replace(os.sep, "/") if gallery else None,
+        "gallery_caption": _our_caption("fig3_snapshot")[0],
+        "level_parameters": [p for p in params if p["fidelity"] == fidelity],
         "fidelity": fidelity,
         "fid_dir": _rel_to(fid_dir, repo_root),
         # the paper's reading, relative to the document wherever it is built
@@ -578,7 +898,7 @@ def build_context(repo_root: Path, fid_dir: Path, fidelity: str, config: dict, o
         "stability": table_of(stability) if stability is not None else None,
         "study": study_section(study_dir, out_dir),
         "study_level": study_level(config, fidelity),
-        "health": health_section(fid_dir, config),
+        "health": health_ctx,
         "runtime": runtime_section(fid_dir, fidelity),
         "missing": lambda rel: f"not built at this level: `{_rel_to(fid_dir, repo_root)}/{rel}` missing",
     }
@@ -609,6 +929,7 @@ def build_document(repo_root: Path, fid_dir: Path, fidelity: str, config: dict, 
                              undefined=jinja2.StrictUndefined, keep_trailing_newline=True,
                              trim_blocks=True, lstrip_blocks=True, autoescape=False)
     env.filters["fmt"] = fmt
+    env.filters["first_sentence"] = first_sentence
     text = env.get_template("reproduction.md.j2").render(**build_context(repo_root, fid_dir, fidelity, config, out_md))
     text = re.sub(r"\n{3,}", "\n\n", text)
     out_md.write_text(text, encoding="utf-8")
