@@ -71,11 +71,13 @@ rule study_collect:
     conda:
         "../envs/lbmpipe.yaml"
     input:
+        # ancient: the collection reads the averaging case's trajectory when present, so on a fresh
+        # clone (no trajectories, arbitrary mtimes) it must not run again unless a study run did
         unpack(_study_case_inputs),
-        summaries=lambda wc: [f"{d}/summary.json" for d in _study_run_dirs(wc)],
-        processes=lambda wc: [f"{d}/process.json" for d in _study_run_dirs(wc)],
-        benchmarks=lambda wc: expand("results/{fidelity}/study/benchmarks/{run}.tsv", fidelity=wc.fidelity,
-                                     run=lbm_study.run_ids(config, wc.fidelity)),
+        summaries=lambda wc: [ancient(f"{d}/summary.json") for d in _study_run_dirs(wc)],
+        processes=lambda wc: [ancient(f"{d}/process.json") for d in _study_run_dirs(wc)],
+        benchmarks=lambda wc: [ancient(f) for f in expand("results/{fidelity}/study/benchmarks/{run}.tsv",
+                                                          fidelity=wc.fidelity, run=lbm_study.run_ids(config, wc.fidelity))],
     output:
         table="results/{fidelity}/study/accuracy_cost.csv",
         runs="results/{fidelity}/study/cost_runs.csv",
