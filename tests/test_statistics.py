@@ -394,6 +394,21 @@ def test_a_fluid_volume_change_without_a_density_drift_is_healthy(tmp_path):
     assert "unhealthy" in S.case_statistics("c", tmp_path / "leak" / "c", CYL_CFG)["flags"]
 
 
+def test_renormalised_mass_is_judged_against_the_mass_through_the_pipe_not_the_runs_length():
+    # a steady loss of 1.5e-5 of the mass per step, made up by the correction: 0.9 of the initial
+    # mass over 60,000 steps and 0.09 over 6,000, the same 1.9 % of what flowed through the pipe
+    lat = {"fluid_nodes": 197600, "flow_rate_lu": 157.7}
+    long_ = {"steps": 60000, "lattice": lat, "mass_correction": {"mass_added_rel": 0.9}}
+    short = {"steps": 6000, "lattice": lat, "mass_correction": {"mass_added_rel": 0.09}}
+    assert health.mass_corrected_throughflow(long_) == pytest.approx(health.mass_corrected_throughflow(short))
+    assert health.mass_corrected_throughflow(long_) == pytest.approx(0.9 * 197600 / (157.7 * 60000))
+    limits = health.thresholds()["health"]
+    h = health.run_health({"status": "completed", **long_}, None, limits)
+    assert any(i.startswith("mass renormalised / mass through the pipe") for i in h["issues"])
+    h = health.run_health({"status": "completed", **long_, "mass_correction": {"mass_added_rel": 0.1}}, None, limits)
+    assert h["issues"] == [] and h["mass_corrected_rel"] == pytest.approx(0.1)
+
+
 def test_run_health_table_has_a_row_per_case_and_flags_the_one_beyond_a_threshold(tmp_path):
     fid = tmp_path / "lvl"
     _long_case(fid / "cases", summary_extra={"mass_drift_rel": 0.05})

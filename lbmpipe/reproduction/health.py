@@ -13,7 +13,11 @@ Run health of a case (:func:`run_health`), from its ``summary.json`` and ``flow_
   the drift of the total mass): with particles the total mass follows the fluid's volume, which
   bodies free to overlap (collisions off) change by several per cent without any leak;
 - ``mass_corrected_rel``: mass renormalised in total by the particles' mass correction, relative
-  (NaN when the summary does not record it);
+  (NaN when the summary does not record it); it grows with the run's length at a steady loss;
+- ``mass_corrected_throughflow``: the same mass relative to the mass the pipe carried through a
+  cross-section during the run (``mass_corrected_rel * fluid nodes / (Q_lu * steps)``): the
+  spurious source the correction is, against the flow it sits in, independent of the run's length
+  (judged: ``max_mass_corrected_throughflow``);
 - ``density_deviation_median``, ``density_deviation_max``: median and maximum over the samples of
   ``flow_rate.csv``'s ``max_density_deviation`` (largest ``|rho - 1|`` of the lattice);
 - ``rotation_projections``, ``rotation_projection_share``: rotating projections of the collision
@@ -40,14 +44,14 @@ import yaml
 _NAN = float("nan")
 CONFIG_PATH = Path(__file__).resolve().parents[2] / "config.yaml"
 HEALTH_COLUMNS = ["case", "status", "mass_floor_rel", "mass_drift_rel", "mass_corrected_rel",
-                  "density_deviation_median", "density_deviation_max", "rotation_projections",
+                  "mass_corrected_throughflow", "density_deviation_median", "density_deviation_max", "rotation_projections",
                   "rotation_projection_share", "max_overlap_lu", "flow_rate_error_rel", "frozen", "locked",
                   "steady", "issues", "flags"]
 #: health quantity -> (threshold key in diagnostics.health, label of an issue)
 _LIMITS = {
     "mass_floor_rel": ("max_mass_floor_rel", "mass added by the density floor"),
     "mass_drift_rel": ("max_mass_drift_rel", "mass drift"),
-    "mass_corrected_rel": ("max_mass_corrected_rel", "mass renormalised"),
+    "mass_corrected_throughflow": ("max_mass_corrected_throughflow", "mass renormalised / mass through the pipe"),
     "density_deviation_max": ("max_density_deviation", "largest density deviation"),
     "rotation_projection_share": ("max_rotation_projection_share", "rotating projections per step"),
     "max_overlap_lu": ("max_overlap_lu", "largest overlap (lattice spacings)"),
@@ -114,6 +118,16 @@ def mass_corrected_rel(summary: dict) -> float:
     return _NAN
 
 
+def mass_corrected_throughflow(summary: dict) -> float:
+    """Mass renormalised by the particles' mass correction over the run, relative to the mass that
+    flowed through the pipe meanwhile (``lattice.fluid_nodes`` times ``mass_corrected_rel`` over
+    ``lattice.flow_rate_lu`` times ``steps``); NaN without a flow-rate-driven lattice record."""
+    lat = summary.get("lattice") or {}
+    nodes, q, steps = _num(lat.get("fluid_nodes")), _num(lat.get("flow_rate_lu")), _num(summary.get("steps"))
+    m = mass_corrected_rel(summary)
+    return m * nodes / (q * steps) if q > 0 and steps > 0 and np.isfinite(m) and np.isfinite(nodes) else _NAN
+
+
 def flow_rate_error_rel(summary: dict) -> float:
     """``|Q_mean / Q_target - 1|`` of a flow-rate-driven run (NaN without a target)."""
     target = _num(((summary.get("scene") or {}).get("driving") or {}).get("flow_rate_m3_s"))
@@ -132,6 +146,7 @@ def run_health(summary: dict | None, flow_rate: pd.DataFrame | None, limits: dic
            "mass_floor_rel": abs(_num((s.get("density_floor") or {}).get("mass_added_rel"))),
            "mass_drift_rel": abs(_num(s.get("density_drift_rel", s.get("mass_drift_rel")))),
            "mass_corrected_rel": mass_corrected_rel(s),
+           "mass_corrected_throughflow": mass_corrected_throughflow(s),
            "mass_corrected_note": "" if "mass_correction" in s else "not recorded in summary.json",
            "density_deviation_median": med, "density_deviation_max": mx,
            "rotation_projections": n_rot, "rotation_projection_share": share,
@@ -175,7 +190,7 @@ def health_row(case: str, case_dir: Path, limits: dict) -> dict:
     stats = read_json(case_dir / "stats.json") or {}
     flags = [f for f in case_flags(stats) if f != "unhealthy"] + (["unhealthy"] if h["issues"] else [])
     spin = stats.get("spinup") if isinstance(stats.get("spinup"), dict) else {}
-    return {"case": case, **{k: h[k] for k in HEALTH_COLUMNS[1:11]},
+    return {"case": case, **{k: h[k] for k in HEALTH_COLUMNS[1:HEALTH_COLUMNS.index("frozen")]},
             "frozen": _fmt_bool(stats.get("frozen"), "frozen"), "locked": _fmt_bool(stats.get("locked"), "locked"),
             "steady": _fmt_bool(spin, "steady"), "issues": "; ".join(h["issues"]), "flags": ";".join(flags)}
 

@@ -499,7 +499,8 @@ def health_section(fid_dir: Path, config: dict) -> dict:
         r["rotation_projection_share"] = r.pop("rotation_projection_share")
         r["flags"] = r["flags"].replace(";", ", ") or "none"
         rows.append(r)
-    cols = ["case", "status", "mass_floor_rel", "mass_drift_rel", "mass_corrected_rel", "density_deviation_median",
+    cols = ["case", "status", "mass_floor_rel", "mass_drift_rel", "mass_corrected_rel", "mass_corrected_throughflow",
+            "density_deviation_median",
             "density_deviation_max", "rotation_projection_share", "max_overlap_lu", "flow_rate_error_rel", "frozen",
             "locked", "steady", "flags", "issues"]
     limits = ", ".join(f"`{k}` = {fmt(v)}" for k, v in diag["health"].items())

@@ -99,7 +99,11 @@ def _snapshot_files(name):
     # The run each snapshot (Fig. 3) draws: the case's, or its first seed's in a seeded level.
     def files(wildcards):
         sub = "/seed1" if wildcards.fidelity in SEEDED_LEVELS else ""
-        # under new_runs=none the runs whose last frame is here (a run without one is drawn as it is)
+        # under new_runs=none the runs whose last frame is here or can be made from their trajectory
+        # (a snapshot drawn from a trajectory no longer here is kept as it is)
+        def drawable(d):
+            return any(Path(d, f).exists() for f in ("last_frame.csv", "particles.parquet"))
+
         return [f"results/{wildcards.fidelity}/cases/{c}{sub}/{name}" for c in PARTICLE_CASES
-                if NEW_RUNS == "all" or Path(f"results/{wildcards.fidelity}/cases/{c}{sub}/last_frame.csv").exists()]
+                if NEW_RUNS == "all" or drawable(f"results/{wildcards.fidelity}/cases/{c}{sub}")]
     return files
