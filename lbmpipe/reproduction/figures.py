@@ -346,10 +346,12 @@ def shape_size_bars(table, reynolds: float, stem: Path, title: str = "", concent
     for ax in axs:  # one scale for the three axes; the "not ..." marks are re-placed at the bottom
         ax.set_ylim(0, max(tops))
     axs[0].set_ylabel(OMEGA_YLABEL)
-    axs[0].legend(fontsize=7, frameon=False)
+    # one legend below the panels: its labels carry statuses and flags, too long for a panel
+    handles, labels = axs[0].get_legend_handles_labels()
+    fig.legend(handles, labels, loc="lower center", ncol=2, fontsize=7, frameon=False, bbox_to_anchor=(0.5, 0.0))
     if title:
         fig.suptitle(title, fontsize=9)
-    fig.tight_layout()
+    fig.tight_layout(rect=(0.0, 0.07, 1.0, 1.0))
     return save(fig, stem)
 
 
