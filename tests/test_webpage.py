@@ -8,6 +8,7 @@ resolves. Skipped, with the reason, where Chromium or its driver is missing (.ci
 from __future__ import annotations
 
 import importlib.util
+import os
 import re
 import shutil
 import time
@@ -184,7 +185,9 @@ def test_built_page_in_chromium_renders_equations_loads_images_and_resolves_ever
     # (the whole table, also beyond the window: DevTools' capture with a clip in page coordinates)
     import base64
 
-    shot = page.parent / "claims_summary.png"
+    # (into $LBMPIPE_SCREENSHOT_DIR when set, to keep it; else beside the page in pytest's folder)
+    shot = Path(os.environ.get("LBMPIPE_SCREENSHOT_DIR", page.parent)) / "claims_summary.png"
+    shot.parent.mkdir(parents=True, exist_ok=True)
     x, y, w, h = browser.execute_script(
         "const r = document.getElementById('claim-1').closest('table').getBoundingClientRect();"
         " return [r.left + window.scrollX, r.top + window.scrollY, r.width, r.height];")
