@@ -434,3 +434,14 @@ def test_diagnostics_thresholds_are_validated_by_check_config():
     bad["diagnostics"]["frozen_remaining"] = 2.0
     schema = root / "workflow" / "schemas" / "config.schema.yaml"
     assert any("diagnostics.frozen_remaining" in p for p in config_problems(bad, schema))
+
+
+def test_statistics_of_a_completed_run_without_its_trajectory_refuse_and_keep_the_committed_ones(tmp_path):
+    _long_case(tmp_path, frozen=False)
+    case = tmp_path / "c"
+    S.write_case_outputs("c", case, CYL_CFG)
+    before = (case / "stats.json").read_text()
+    (case / "particles.parquet").unlink()
+    with pytest.raises(FileNotFoundError, match="not committed"):
+        S.write_case_outputs("c", case, CYL_CFG)
+    assert (case / "stats.json").read_text() == before

@@ -488,6 +488,13 @@ def write_case_outputs(case: str, case_dir: Path, case_cfg: dict, config: dict |
     """Write ``stats.json`` and ``orientation.csv`` beside the case files (NaN written as JSON
     ``null`` in ``stats.json``); ``config`` the pipeline config (its ``diagnostics`` thresholds)."""
     case_dir = Path(case_dir)
+    summary = H.read_json(case_dir / "summary.json") or {}
+    if summary.get("status") == "completed" and not (case_dir / "particles.parquet").exists():
+        # a committed run's statistics without its trajectory would be NaN: keep the ones there
+        raise FileNotFoundError(
+            f"{case_dir / 'particles.parquet'} is not here (trajectories are not committed): the statistics of "
+            f"{case} need it; rerun the case (snakemake --forcerun simulate_particles <its summary.json>) or keep "
+            "its committed stats.json")
     s = case_statistics(case, case_dir, case_cfg, config=config)
     (case_dir / "stats.json").write_text(json.dumps(_jsonable(s), indent=2) + "\n")
     spin = s["spinup_s"] if s["spinup_s"] is not None and np.isfinite(s["spinup_s"]) else 0.0
