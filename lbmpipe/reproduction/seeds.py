@@ -16,12 +16,8 @@ claims and the document read:
 - ``summary.json``: the status (``completed`` when every seed completed), the seeds' statuses,
   steps and seconds summed, and the packing of each seed.
 
-The combined interval (one-way random effects on the seed means ``m_k``, k = 1..n, each with a
-within-run standard error ``s_k`` from its own batch means): the grand mean is ``mean(m_k)``; its
-variance is estimated by the larger of ``var(m_k)/n`` (the seeds' scatter, which holds the
-within-run noise too, with n - 1 degrees of freedom) and ``sum(s_k^2)/n^2`` (the within-run part
-alone, with the runs' degrees of freedom): with three seeds that agree by chance the interval
-does not shrink below what each run's own noise allows.
+The combined interval is :func:`lbmpipe.reproduction.steady.combine_seeds` (independent
+replications: the larger of the seeds' scatter and the runs' own noise).
 """
 
 from __future__ import annotations
@@ -32,11 +28,11 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
-from scipy import stats as sps
-
 from . import health as H
+from . import steady
 
 AXES = ("x", "y", "z")
+_NAN = float("nan")
 
 
 def _finite(v) -> bool:
@@ -44,39 +40,12 @@ def _finite(v) -> bool:
 
 
 def combine_means(means, ci95s, dofs=None) -> dict:
-    """Grand mean of the seeds' means and its 95 % half-width (module docstring).
-
-    ``ci95s`` are the runs' own half-widths (None or NaN where a run gives none) and ``dofs`` their
-    degrees of freedom (None: large). Returns ``mean``, ``ci95``, ``dof``, ``n_seeds``,
-    ``between_se`` and ``within_se`` (standard errors of the grand mean from the seeds' scatter
-    and from the runs' noise) and ``source`` (which of the two sets the interval)."""
-    m = np.array([float(v) for v in means if _finite(v)])
-    n = len(m)
-    out = {"mean": float(m.mean()) if n else None, "ci95": None, "dof": None, "n_seeds": n,
-           "between_se": None, "within_se": None, "source": None}
-    if n == 0:
-        return out
+    """:func:`lbmpipe.reproduction.steady.combine_seeds` on per-seed values that may be missing
+    (``None``): a seed without a mean is left out; one without an interval or its degrees of
+    freedom leaves only the between-seed interval."""
     dofs = list(dofs) if dofs is not None else [None] * len(means)
-    within, wdof = [], []
-    for v, c, d in zip(means, ci95s, dofs):
-        if not _finite(v):
-            continue
-        if _finite(c):
-            nu = float(d) if _finite(d) and d > 0 else 1e6
-            within.append(float(c) / sps.t.ppf(0.975, nu))
-            wdof.append(nu)
-    within_se = math.sqrt(sum(s * s for s in within)) / n if len(within) == n else None
-    between_se = float(m.std(ddof=1) / math.sqrt(n)) if n >= 2 else None
-    out.update(between_se=between_se, within_se=within_se)
-    if between_se is not None and (within_se is None or between_se >= within_se):
-        out.update(ci95=float(sps.t.ppf(0.975, n - 1) * between_se), dof=n - 1, source="between seeds")
-    elif within_se is not None:
-        # Satterthwaite's degrees of freedom of a sum of the runs' variances
-        num = sum(s * s for s in within) ** 2
-        den = sum(s ** 4 / d for s, d in zip(within, wdof))
-        nu = num / den if den > 0 else 1e6
-        out.update(ci95=float(sps.t.ppf(0.975, nu) * within_se), dof=float(nu), source="within runs")
-    return out
+    num = [[_NAN if not _finite(v) else float(v) for v in col] for col in (means, ci95s, dofs)]
+    return steady.combine_seeds(*num)
 
 
 def _seed_dirs(case_dir: Path, seeds) -> list[tuple[int, Path]]:
