@@ -75,7 +75,7 @@ def test_a_seed_not_yet_run_is_left_out_of_the_mean_and_counted():
 
 
 def test_combined_files_average_histograms_and_profiles_over_the_seeds(tmp_path):
-    case = tmp_path / "cube8_c30_re9.4"
+    case = tmp_path / "cases" / "cube8_c30_re9.4"
     for k, (mean, frac) in enumerate([(1.0, 0.2), (1.2, 0.4)], start=1):
         d = case / f"seed{k}"
         d.mkdir(parents=True)
@@ -94,6 +94,13 @@ def test_combined_files_average_histograms_and_profiles_over_the_seeds(tmp_path)
     summary = json.loads((case / "summary.json").read_text())
     assert summary["status"] == "completed" and summary["steps"] == 200
     assert json.loads((case / "stats.json").read_text())["n_seeds"] == 2
+    # the level's table reports the packings and their spread
+    from lbmpipe.reproduction.statistics import aggregate
+    aggregate(tmp_path, {"cube8_c30_re9.4": {"reynolds": 9.4, "particles": {"shape": "cube", "edge_mm": 8,
+                                                                             "concentration": 0.3}}})
+    row = pd.read_csv(tmp_path / "tables" / "angular_velocity.csv").iloc[0]
+    assert row.n_seeds == 2 and row.omega_x == pytest.approx(1.1)
+    assert row.seed_sd_x == pytest.approx(pd.Series([1.0, 1.2]).std() / 1.1)
 
 
 def _config():

@@ -248,6 +248,8 @@ def test_aggregate_lists_every_particle_case_including_unpackable_and_not_run(tm
     assert b.status == "unpackable" and math.isnan(b.omega_x) and b.concentration_achieved == pytest.approx(0.2839)
     assert b.size_label == "24 mm" and b.concentration == 0.5
     assert c.status == "not run" and not c.collisions
+    # one packing: counted, and no seed-to-seed spread
+    assert a.n_seeds == 1 and c.n_seeds == 0 and math.isnan(a.seed_sd_x)
     pk = pd.read_csv(fid / "tables" / "packing.csv").set_index("case")
     assert list(pk.columns) == S.PACKING_COLUMNS[1:]
     assert pk.loc["b", "status"] == "unpackable" and pk.loc["b", "concentration_achieved"] == pytest.approx(0.2839)

@@ -59,8 +59,11 @@ ORIENTATION_KINDS = {
 ORIENTATION_COLUMNS = ["kind", "bin_lo_deg", "bin_hi_deg", "fraction", "ci95"]
 META_COLUMNS = ["case", "shape", "size_label", "diameter_mm", "length_mm", "edge_mm", "concentration",
                 "reynolds", "collisions"]
+# n_seeds: packings the case's values combine (1 in a level without seeds); seed_sd_*: the
+# seed-to-seed standard deviation of the packings' means, relative to the mean (NaN with one packing)
 ANGULAR_VELOCITY_COLUMNS = META_COLUMNS + ["status", "concentration_achieved", "n_particles", "samples",
-                                           "omega_x", "omega_y", "omega_z", "ci_x", "ci_y", "ci_z", "flags"]
+                                           "omega_x", "omega_y", "omega_z", "ci_x", "ci_y", "ci_z", "n_seeds",
+                                           "seed_sd_x", "seed_sd_y", "seed_sd_z", "flags"]
 ORIENTATION_TABLE_COLUMNS = ["case", "shape", "size_label", "concentration", "reynolds", "collisions", "status",
                              "kind", "bin_lo_deg", "bin_hi_deg", "fraction", "ci95"]
 ORIENTATION_SUMMARY_COLUMNS = ["case", "shape", "size_label", "concentration", "reynolds", "collisions", "status",
@@ -583,6 +586,8 @@ def aggregate(fid_dir: Path, cases: dict) -> None:
                    "n_particles": int(s.get("n_particles") or parts.get("count") or 0),
                    "samples": int(s.get("samples") or 0),
                    **{f"omega_{a}": _num(om.get(a)) for a in AXES}, **{f"ci_{a}": _num(ci.get(a)) for a in AXES},
+                   "n_seeds": int(s.get("n_seeds", 1 if s.get("samples") else 0)),
+                   **{f"seed_sd_{a}": _num((s.get("seed_spread_rel") or {}).get(a)) for a in AXES},
                    "flags": flags})
         short = {k: meta[k] for k in ("case", "shape", "size_label", "concentration", "reynolds", "collisions")}
         h = _case_orientation(cdir, meta["shape"], {**s, "status": status})
