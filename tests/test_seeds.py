@@ -63,6 +63,7 @@ def test_a_case_is_frozen_unhealthy_or_unsteady_when_any_packing_is_and_names_th
     assert set(out["flags"]) == {"frozen", "unhealthy", "not steady"}
     assert out["frozen"]["seeds"] == [2] and out["spinup"]["seeds_not_steady"] == [3]
     assert out["health"]["issues"] == ["seed 2: mass drift"]
+    assert out["health"]["max_overlap_lu"] == pytest.approx(0.02)
     assert out["mean_abs_omega_rad_s"]["x"] == pytest.approx(1.0)
     assert out["seed_spread_rel"]["x"] == pytest.approx(0.05)
     assert [s["seed"] for s in out["seeds"]] == [1, 2, 3]
@@ -158,3 +159,15 @@ def test_fresh_clone_regenerates_the_committed_level_without_running_a_simulatio
     costly = {"pack", "simulate_particles", "simulate_flow", "statistics", "study_run", "study_warmup",
               "stability_table"}
     assert planned and not planned & costly, run.stdout + run.stderr
+
+
+def test_run_health_of_a_combined_case_is_its_worst_packings(tmp_path):
+    from lbmpipe.reproduction import health
+
+    case = tmp_path / "c"
+    case.mkdir()
+    stats = S.combine_stats("c", [(1, _seed_stats(1.0, 0.02)), (2, _seed_stats(1.1, 0.02, issues=["mass drift"]))])
+    (case / "stats.json").write_text(json.dumps(S._jsonable(stats)))
+    row = health.health_row("c", case, health.thresholds()["health"])
+    assert row["issues"] == "seed 2: mass drift" and "unhealthy" in row["flags"]
+    assert row["max_overlap_lu"] == pytest.approx(0.02) and row["status"] == "completed"

@@ -186,8 +186,13 @@ def health_row(case: str, case_dir: Path, limits: dict) -> dict:
     """One row of ``tables/run_health.csv``: the run health of the case, its diagnostics from
     ``stats.json`` when written (empty when not computed) and its flags."""
     case_dir = Path(case_dir)
-    h = run_health(read_json(case_dir / "summary.json"), read_flow_rate(case_dir), limits)
     stats = read_json(case_dir / "stats.json") or {}
+    if isinstance(stats.get("seeds"), list) and isinstance(stats.get("health"), dict):
+        # a case combined over packings (lbmpipe.reproduction.seeds): its seeds' worst health
+        h = {k: _num(stats["health"].get(k)) for k in HEALTH_COLUMNS[2:HEALTH_COLUMNS.index("frozen")]}
+        h.update(status=stats.get("status", "not run"), issues=list(stats["health"].get("issues") or []))
+    else:
+        h = run_health(read_json(case_dir / "summary.json"), read_flow_rate(case_dir), limits)
     flags = [f for f in case_flags(stats) if f != "unhealthy"] + (["unhealthy"] if h["issues"] else [])
     spin = stats.get("spinup") if isinstance(stats.get("spinup"), dict) else {}
     return {"case": case, **{k: h[k] for k in HEALTH_COLUMNS[1:HEALTH_COLUMNS.index("frozen")]},

@@ -133,7 +133,7 @@ def _worst_diagnostics(done: list[tuple[int, dict]]) -> dict:
         issues += [f"seed {k}: {i}" for i in h.get("issues") or []]
         for key, v in h.items():
             if _finite(v):
-                numbers[key] = max(numbers.get(key, -math.inf), float(v), key=abs)
+                numbers[key] = max(numbers.get(key, float(v)), float(v))  # magnitudes: the worst seed's
     health = {**numbers, "issues": issues, "healthy": not issues}
     sp = [(k, s.get("spinup") or {}) for k, s in done]
     unsteady = [k for k, d in sp if d and not d.get("steady", True)]
