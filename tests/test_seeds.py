@@ -171,3 +171,14 @@ def test_run_health_of_a_combined_case_is_its_worst_packings(tmp_path):
     row = health.health_row("c", case, health.thresholds()["health"])
     assert row["issues"] == "seed 2: mass drift" and "unhealthy" in row["flags"]
     assert row["max_overlap_lu"] == pytest.approx(0.02) and row["status"] == "completed"
+
+
+def test_two_packings_give_a_valid_interval_where_each_run_alone_is_too_short():
+    short = _seed_stats(1.0, 0.05)
+    for iv in short["omega_intervals"].values():
+        iv["sufficient"] = False
+    one = S.combine_stats("c", [(1, short)])
+    two = S.combine_stats("c", [(1, short), (2, _seed_stats(1.1, 0.05))])
+    assert not one["omega_intervals"]["x"]["sufficient"]
+    assert two["omega_intervals"]["x"]["sufficient"]  # independent replications
+    assert "seeds 1" in two["omega_intervals"]["x"]["message"]
