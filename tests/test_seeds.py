@@ -182,3 +182,12 @@ def test_two_packings_give_a_valid_interval_where_each_run_alone_is_too_short():
     assert not one["omega_intervals"]["x"]["sufficient"]
     assert two["omega_intervals"]["x"]["sufficient"]  # independent replications
     assert "seeds 1" in two["omega_intervals"]["x"]["message"]
+
+
+def test_packings_needed_for_a_5_percent_interval_follow_from_the_seeds_scatter():
+    # 20 % scatter between packings: t_{n-1} 0.2 / sqrt(n) <= 0.05 first at n = 64 (t ~ 2.0)
+    n = S.seeds_needed(0.2, 0.05)
+    assert sps.t.ppf(0.975, n - 1) * 0.2 / n ** 0.5 <= 0.05 < sps.t.ppf(0.975, n - 2) * 0.2 / (n - 1) ** 0.5
+    assert 60 <= n <= 70
+    assert S.seeds_needed(0.01, 0.05) == 3  # t_1 = 12.7 is too wide with two
+    assert S.seeds_needed(None, 0.05) is None

@@ -48,6 +48,21 @@ def combine_means(means, ci95s, dofs=None) -> dict:
     return steady.combine_seeds(*num)
 
 
+def seeds_needed(spread_rel: float | None, target_rel: float, confidence: float = 0.95, most: int = 10000) -> int | None:
+    """Packings a case needs for a relative half-width ``target_rel`` of its mean when the seeds'
+    means scatter by ``spread_rel`` (relative standard deviation): the least ``n >= 2`` with
+    ``t_{n-1} spread_rel / sqrt(n) <= target_rel`` (the between-seed interval alone, the floor
+    that longer runs cannot lower); None without a measured spread."""
+    if spread_rel is None or not _finite(spread_rel):
+        return None
+    from scipy import stats as sps
+
+    for n in range(2, most + 1):
+        if sps.t.ppf(0.5 + confidence / 2, n - 1) * spread_rel / math.sqrt(n) <= target_rel:
+            return n
+    return most
+
+
 def _seed_dirs(case_dir: Path, seeds) -> list[tuple[int, Path]]:
     return [(int(k), Path(case_dir) / f"seed{int(k)}") for k in seeds]
 
@@ -89,6 +104,7 @@ def combine_stats(case: str, per_seed: list[tuple[int, dict]]) -> dict:
                                                              "not valid") if insufficient else "")}
     out["mean_abs_omega_rad_s"], out["ci95_rad_s"] = omega, ci
     out["omega_intervals"], out["seed_spread_rel"] = intervals, spread
+    out["seeds_for_5pct"] = {a: seeds_needed(spread[a], 0.05) for a in AXES}
     out["tau_int_s"] = {a: max((float((s.get("tau_int_s") or {}).get(a)) for _, s in done
                                 if _finite((s.get("tau_int_s") or {}).get(a))), default=None) for a in AXES}
 
