@@ -66,9 +66,18 @@ def main(argv=None) -> int:
     ratios = [statistics.median(v) / ref[c] for c, v in by_case.items() if ref.get(c)]
     factor = statistics.median(ratios) if ratios else None
 
-    rows, missing = [], []
+    def _status(level_dir: Path, run: str) -> str | None:
+        try:
+            return json.loads((level_dir / "cases" / run / "summary.json").read_text()).get("status")
+        except (OSError, ValueError):
+            return None
+
+    rows, missing, unpackable = [], [], []
     for r in runs:
         case = r.split("/seed")[0]
+        if "unpackable" in (_status(res / level, r), _status(res / args.reference, case)):
+            unpackable.append(r)  # no run: the packer cannot reach the concentration
+            continue
         if measured[r] is not None:
             per, source = measured[r], "measured"
         elif case in by_case:
@@ -93,6 +102,8 @@ def main(argv=None) -> int:
           f"still to run: {todo / 3600:.1f} core-hours ({todo / 7200:.1f} h on 2 cores)")
     if longest:
         print(f"on a cluster with a core per run: the longest run, {longest[0]}, {longest[1] * longest[2] / 60:.0f} min")
+    if unpackable:
+        print(f"not packable (no run): {', '.join(unpackable)}")
     if missing:
         print(f"no estimate (not measured anywhere): {', '.join(missing)}")
     return 0
