@@ -676,9 +676,14 @@ def _case_dirs(fid_dir: Path, config: dict) -> dict[str, dict]:
 
 
 def averaging_s(summary: dict | None, stats: dict | None) -> float:
-    """Simulated time averaged after spin-up of a case (s): run length minus spin-up; NaN if not run."""
+    """Simulated time averaged after spin-up of a case (s): run length minus spin-up; NaN if not run.
+    A case combined over packings (``stats["seeds"]``): the mean over its packings of each one's."""
     if not summary or summary.get("status") != "completed":
         return float("nan")
+    seeds = [x for x in (stats or {}).get("seeds") or [] if x.get("status") == "completed"]
+    if seeds:
+        spins = sum(float(x.get("spinup_s") or 0.0) for x in seeds)
+        return (float(summary.get("simulated_seconds", float("nan"))) - spins) / len(seeds)
     spin = (stats or {}).get("spinup_s", summary.get("spinup_s", 0.0))
     spin = spin.get("spinup_s", 0.0) if isinstance(spin, dict) else spin
     return float(summary.get("simulated_seconds", float("nan"))) - float(spin or 0.0)
