@@ -234,3 +234,32 @@ def test_observable_converges_towards_the_finest_level_present_and_says_when_the
     rows = {r["setting"]: r for r in study.observable_rows(CONFIG, "smoke", tmp_path)}
     assert rows["smoke"]["error"] == pytest.approx(0.2 / math.sqrt(2.25))  # |(0.2, 0, 0)| / |(1, 1, 0.5)|
     assert math.isnan(rows["paper"]["error"]) and rows["paper"]["note"].startswith("reference")
+
+
+def test_averaging_recommendation_rests_on_at_least_20_batches_and_names_them(tmp_path):
+    # |Omega_x| of 3 particles: an AR(1) series with a correlation time of 0.1 s, sampled every
+    # 0.01 s for 40 s; windows shorter than 20 batches of 5 correlation times (10 s) are not
+    # recommendable, however small their apparent error
+    rng = np.random.default_rng(1)
+    n, dt, phi = 4000, 0.01, math.exp(-0.01 / 0.1)
+    w = np.empty(n)
+    w[0] = 0.0
+    for i in range(1, n):
+        w[i] = phi * w[i - 1] + math.sqrt(1 - phi * phi) * 0.1 * rng.standard_normal()
+    t = np.arange(n) * dt
+    d = tmp_path / "paper" / "cases" / "cyl8x16_c30_re9.4"
+    d.mkdir(parents=True)
+    pd.DataFrame({"t_s": np.repeat(t, 3), "wx_rad_s": np.repeat(1.0 + w, 3)}).to_parquet(d / "particles.parquet")
+    (d / "summary.json").write_text(json.dumps({
+        "status": "completed", "steps": n, "fluid_nodes": 1000, "simulated_seconds": n * dt, "spinup_s": 0.0,
+        "threads": 1, "scene": {"numerics": {"dx_mm": 1.0, "dt_s": dt}}, "particles": {"count": 3, "links": 50}}))
+    cfg = {"study": {}, "fidelities": {"paper": {"dx_mm": 1.0}}}
+    rows = pd.DataFrame(study.averaging_rows(cfg, "paper", tmp_path))
+    ok = rows[rows["status"] == "completed"]
+    assert len(ok) and (ok["n_batches"] >= 20).all() and (ok["averaging_s"] >= 9.0).all()
+    short = rows[rows["status"] == "insufficient"]
+    assert len(short) and (short["averaging_s"] < 10.0).all()
+    rec = study.recommend(rows.assign(cpu_s=rows["averaging_s"]), {"averaging": 0.5}, cost="cpu_s")
+    best = rec["references"]["averaging"]["recommended"]
+    assert best["n_batches"] >= 20
+    assert "rests on" in study.recommendation_markdown(rec)

@@ -48,10 +48,10 @@ import pandas as pd
 
 from .pipe import DENSITY_KG_M3, DT_PER_MM_S, FLOWS, PIPE, time_step
 from .pipe import pipe_scene as paper_pipe_scene
-from .statistics import batch_means
+from . import steady
 
-#: the batch-means estimator the averaging study names in its rows
-BATCH_MEANS = f"{batch_means.__module__}.{batch_means.__name__}"
+#: the interval estimator the averaging study names in its rows
+BATCH_MEANS = f"{steady.mean_interval.__module__}.{steady.mean_interval.__name__}"
 
 # ----------------------------------------------------------------------------------------------
 # Settings
@@ -88,7 +88,7 @@ DEFAULTS: dict = {
         "combos": [{"collision": "trt"}],
     },
     "observable": {"case": "cyl8x16_c30_re9.4"},
-    "averaging": {"case": "cyl8x16_c30_re9.4", "component": "x", "n_batches": 10, "min_samples": 4},
+    "averaging": {"case": "cyl8x16_c30_re9.4", "component": "x", "min_samples": 4},
 }
 
 #: Per-level defaults (merged over DEFAULTS): smoke runs the whole study in about a minute of CPU.
@@ -621,20 +621,25 @@ def averaging_rows(config: dict, fidelity: str, root: Path = Path("results")) ->
     k = 0
     while n // 2**k >= int(a["min_samples"]):
         m = n // 2**k
-        mean, hw, _ = batch_means(x[:m], int(a["n_batches"]))
+        # the interval of steady.mean_interval: >= 20 batches of >= 5 correlation times, else
+        # overlapping batch means marked insufficient; only a sufficient window is recommended
+        iv = steady.mean_interval(x[:m], dt_sample)
+        mean, hw = iv["mean"], iv["ci95"]
         window = m * dt_sample
         frac = (spin + window) / total if total > 0 else float("nan")
         rows.append({**base, "run": f"{fidelity}/{case}/window_{window:.4g}s", "setting": f"{window:.3g} s", "is_base": k == 0, "value": mean, "reference_value": mean,
                      "error": hw / mean if mean > 0 else float("nan"), "error_signed": hw / mean if mean > 0 else float("nan"),
-                     "error_what": f"95 % batch-means half-width / mean of |Omega_{comp}| ({BATCH_MEANS})",
+                     "error_what": f"95 % half-width / mean of |Omega_{comp}| ({BATCH_MEANS})",
                      "averaging_s": window, "simulated_s": spin + window, "samples": m,
                      "wall_s": wall * frac, "cpu_s": cpu * frac, "solver_s": work["solver_s"] * frac,
                      "steps": int(round(work["steps"] * frac)), "nodes": work["nodes"],
                      "node_updates": work["node_updates"] * frac, "particles": work["particles"],
                      "links": work["links"], "link_updates": work["link_updates"] * frac, "threads": work["threads"],
                      "dx_mm": float(summary["scene"]["numerics"]["dx_mm"]), "dt_s": float(summary["scene"]["numerics"]["dt_s"]),
-                     "status": "completed",
-                     "note": "cost pro-rated from the case's wall time to spin-up + window"})
+                     "n_batches": iv["n_batches"], "batch_s": iv["batch_s"], "interval": iv["method"],
+                     "status": "completed" if iv["sufficient"] else "insufficient",
+                     "note": "cost pro-rated from the case's wall time to spin-up + window"
+                             + ("" if iv["sufficient"] else f"; not recommendable: {iv['message']}")})
         k += 1
     if not rows:
         rows.append({**base, "run": f"{fidelity}/{case}", "setting": "(none)", "error": np.nan, "status": "completed",
@@ -694,7 +699,8 @@ def _jsonable(v):
 
 
 _KEEP = ("knob", "setting", "run", "dx_mm", "dt_factor", "dt_s", "collision", "wall", "precision", "tau", "mach",
-         "error", "error_signed", "error_spread", "wall_s", "cpu_s", "solver_s", "steps", "nodes", "averaging_s", "simulated_s")
+         "error", "error_signed", "error_spread", "wall_s", "cpu_s", "solver_s", "steps", "nodes", "averaging_s", "simulated_s",
+         "n_batches", "batch_s", "interval")
 
 
 def recommend(df: pd.DataFrame, targets: dict, cost: str = "cpu_s", model: dict | None = None,
@@ -1027,7 +1033,10 @@ def recommendation_markdown(rec: dict, model: dict | None = None) -> str:
         if e.get("verdict") == "met":
             r = e["recommended"]
             desc = _describe(ref, r)
-            out.append(head + f"cheapest meeting it: {desc}, error {r['error']:.3g}, {r.get(rec['cost'], float('nan')):.3g} s.")
+            rests = (f" (the interval rests on {r['n_batches']} batches of {r['batch_s']:.3g} s, {r['interval']})"
+                     if r.get("n_batches") else "")
+            out.append(head + f"cheapest meeting it: {desc}, error {r['error']:.3g}, "
+                              f"{r.get(rec['cost'], float('nan')):.3g} s{rests}.")
         elif e.get("verdict") == "not met":
             r = e.get("most_accurate", {})
             out.append(head + f"not met by any tested setting; the most accurate was {_describe(ref, r)} "
