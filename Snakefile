@@ -8,7 +8,7 @@ from snakemake.utils import min_version, validate
 from pathlib import Path
 
 from lbmpipe.reproduction.cases import (CONFIG_SCHEMA, case_scene, config_problems, estimate_minutes, level_runs,
-                                       level_seeds, packing_id, run_case, write_case_scene)
+                                       level_seeds, packing_id, run_case, split_run, write_case_scene)
 from lbmpipe.reproduction.literate import study_level
 from lbmpipe.reproduction.seeds import write_combined
 from lbmpipe.reproduction.statistics import write_case_outputs
@@ -54,7 +54,7 @@ else:
     if len(ACTIVE_RUNS) < len(RUNS):
         print(f"new_runs={NEW_RUNS}: building {FIDELITY} from the {len(ACTIVE_RUNS)} of {len(RUNS)} runs present; "
               "`--config new_runs=all` runs the others", file=sys.stderr)
-ACTIVE_CASES = sorted({r.split("/seed")[0] for r in ACTIVE_RUNS})
+ACTIVE_CASES = sorted({split_run(r)[0] for r in ACTIVE_RUNS})
 ACTIVE_PARTICLE_CASES = [c for c in ACTIVE_CASES if c in PARTICLE_CASES]
 
 

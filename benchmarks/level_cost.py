@@ -24,7 +24,7 @@ import yaml
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from lbmpipe.reproduction.cases import case_scene, level_runs, run_case  # noqa: E402
+from lbmpipe.reproduction.cases import case_scene, level_runs, run_case, split_run  # noqa: E402
 from lbmpipe.scene import Scene  # noqa: E402
 from lbmpipe.units import derive  # noqa: E402
 
@@ -61,7 +61,7 @@ def main(argv=None) -> int:
     by_case: dict[str, list[float]] = {}
     for r, v in measured.items():
         if v is not None:
-            by_case.setdefault(r.split("/seed")[0], []).append(v)
+            by_case.setdefault(split_run(r)[0], []).append(v)
     ref = {c: _per_step(res / args.reference / "cases" / c / "summary.json") for c in config["cases"]}
     ratios = [statistics.median(v) / ref[c] for c, v in by_case.items() if ref.get(c)]
     factor = statistics.median(ratios) if ratios else None
@@ -74,7 +74,7 @@ def main(argv=None) -> int:
 
     rows, missing, unpackable = [], [], []
     for r in runs:
-        case = r.split("/seed")[0]
+        case = split_run(r)[0]
         if "unpackable" in (_status(res / level, r), _status(res / args.reference, case)):
             unpackable.append(r)  # no run: the packer cannot reach the concentration
             continue

@@ -30,6 +30,7 @@ import numpy as np
 import pandas as pd
 from . import health as H
 from . import steady
+from .statistics import _jsonable
 
 AXES = ("x", "y", "z")
 _NAN = float("nan")
@@ -229,16 +230,3 @@ def write_combined(case: str, case_dir: Path, seeds) -> dict:
     (case_dir / "summary.json").write_text(json.dumps(_jsonable(summary), indent=2) + "\n")
     return stats
 
-
-def _jsonable(v):
-    if isinstance(v, dict):
-        return {str(k): _jsonable(x) for k, x in v.items()}
-    if isinstance(v, (list, tuple)):
-        return [_jsonable(x) for x in v]
-    if isinstance(v, (np.floating, float)):
-        return None if not math.isfinite(float(v)) else float(v)
-    if isinstance(v, np.integer):
-        return int(v)
-    if isinstance(v, np.bool_):
-        return bool(v)
-    return v
