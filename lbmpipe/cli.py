@@ -69,13 +69,15 @@ def _table(rows: list[tuple[str, str]]) -> str:
     return "\n".join(f"  {k:<{width}} = {v}" for k, v in rows)
 
 
-#: where ``lbmpipe check`` looks for a calibrated cost model, finest level first
-COST_MODEL_PATHS = tuple(f"results/{lvl}/study/cost_model.json" for lvl in ("paper", "quick", "smoke"))
+#: where ``lbmpipe check`` looks for a calibrated cost model: the wall-time models of the production
+#: levels' runs first (``lbmpipe.reproduction.runcost``), then the accuracy-cost study's
+COST_MODEL_PATHS = (tuple(f"results/{lvl}/tables/cost_model.json" for lvl in ("credible", "paper"))
+                    + tuple(f"results/{lvl}/study/cost_model.json" for lvl in ("paper", "quick", "smoke")))
 
 
 def find_cost_model(explicit: str | None = None) -> tuple[dict | None, str | None]:
-    """The accuracy-cost study's fitted cost model (``lbmpipe.reproduction.study.fit_cost_model``): ``explicit``
-    if given, else the first of ``COST_MODEL_PATHS`` under the current directory."""
+    """A fitted cost model (``lbmpipe.reproduction.runcost`` or ``lbmpipe.reproduction.study.fit_cost_model``):
+    ``explicit`` if given, else the first of ``COST_MODEL_PATHS`` under the current directory."""
     import json
 
     for cand in ([explicit] if explicit else list(COST_MODEL_PATHS)):
@@ -115,22 +117,36 @@ def format_report(scene: Scene, params: LatticeParams, source: str = "", cost_mo
         derived.append((f"wall {side} velocity_lu", "(" + ", ".join(f"{c:.4g}" for c in v) + ")"))
     derived += [
         ("steps", f"{params.n_steps:,}  (spin-up {params.spinup_steps:,}, sample every {params.sample_every:,})"),
-        ("estimated run time", f"{_duration(params.estimated_seconds)}  (lbmpipe.cost, {params.fluid_nodes * params.n_steps:.3g} node updates)"),
+        ("estimated run time", f"{_duration(params.estimated_seconds)}  (lbmpipe.cost: {params.fluid_nodes * params.n_steps:.3g} fluid node "
+                               "updates at the reference throughput, no particles: a lower bound)"),
         ("estimated memory", _memory_text(scene)),
     ]
     if scene.outputs.fields is not None:
         derived.append(("field output", _field_output_size(scene, params)))
     if cost_model is not None and cost_model[0] is not None:
-        from .reproduction.study import predict_seconds
-
-        model, path = cost_model
-        derived.append(("predicted run time", f"{_duration(predict_seconds(scene, params, model))}  (cost model of "
-                        f"{model.get('n_runs', '?')} runs, rms error {100 * model.get('rel_rms_error', float('nan')):.0f} %: "
-                        f"{path})"))
+        derived.append(("predicted run time", _predicted_text(scene, params, *cost_model)))
     text = [f"Scene {scene.name}" + (f"  ({source})" if source else ""), _table(rows), "", "Derived lattice parameters", _table(derived)]
     if params.warnings:
         text += ["", "Warnings"] + [f"  - {w}" for w in params.warnings]
     return "\n".join(text)
+
+
+def _predicted_text(scene: Scene, params: LatticeParams, model: dict, path: str) -> str:
+    """The cost model's wall-time prediction with the error it was validated to."""
+    if "s_per_step" in model:  # wall-time model of a level's production runs
+        from .reproduction.runcost import predict_scene
+
+        err = model.get("median_abs_rel_error", float("nan"))
+        text = (f"{_duration(predict_scene(model, scene, params))} wall  (median error {100 * err:.0f} % on "
+                f"{model.get('n_validated', 0)} production runs held out of the fit, one run per core on the host "
+                f"that ran them: {path})")
+        if (scene.run.threads or 1) not in model.get("threads_measured", [1]):
+            text += f"; not validated at {scene.run.threads} threads"
+        return text
+    from .reproduction.study import predict_seconds
+
+    return (f"{_duration(predict_seconds(scene, params, model))}  (cost model of {model.get('n_runs', '?')} runs, "
+            f"rms error {100 * model.get('rel_rms_error', float('nan')):.0f} %: {path})")
 
 
 def format_closing_summary(summary: dict, out: Path | str) -> str:
@@ -467,7 +483,7 @@ def build_parser() -> argparse.ArgumentParser:
     p_check = sub.add_parser("check", help=COMMANDS["check"][1], description=COMMANDS["check"][1])
     p_check.add_argument("scenes", nargs="+", metavar="SCENE", help="YAML scene file(s); see docs/scene.md")
     p_check.add_argument("--cost-model", default=None, metavar="JSON",
-                         help="cost model of the accuracy-cost study (default: the first of "
+                         help="cost model: a level's tables/cost_model.json or the accuracy-cost study's (default: the first of "
                               + ", ".join(COST_MODEL_PATHS) + " that exists)")
     p_check.set_defaults(func=_cmd_check)
     p_cc = sub.add_parser("check-config", help=COMMANDS["check-config"][1], description=COMMANDS["check-config"][1])

@@ -93,7 +93,8 @@ def save(fig, stem: Path) -> list[Path]:
     out = []
     for ext in ("pdf", "png"):
         path = stem.parent / f"{stem.name}.{ext}"  # not with_suffix: "re9.4" is no suffix
-        fig.savefig(path, dpi=150, bbox_inches="tight")
+        # no creation date in the PDF: a figure rebuilt from the same results is the same file
+        fig.savefig(path, dpi=150, bbox_inches="tight", **({"metadata": {"CreationDate": None}} if ext == "pdf" else {}))
         out.append(path)
     plt.close(fig)
     return out

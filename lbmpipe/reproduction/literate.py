@@ -456,7 +456,22 @@ def runtime_section(fid_dir: Path, fidelity: str) -> dict:
     beside this one), beside the paper's hours per case."""
     fid_dir = Path(fid_dir)
     df = _read_csv(fid_dir / "tables" / "runtime.csv")
-    sec = {"paper_hours": fmt(PAPER_HOURS_PER_CASE), "cases": None, "levels": []}
+    sec = {"paper_hours": fmt(PAPER_HOURS_PER_CASE), "cases": None, "levels": [], "model": None}
+    from .health import read_json
+
+    model = read_json(fid_dir / "tables" / "cost_model.json")
+    val = _read_csv(fid_dir / "tables" / "cost_validation.csv")
+    if model is not None and model.get("n_runs"):
+        sec["model"] = {"formula": model.get("formula", ""), "n_runs": fmt(model.get("n_runs")),
+                        "families": fmt(model.get("families")), "n_validated": fmt(model.get("n_validated")),
+                        "median_pct": fmt(100 * float(model.get("median_abs_rel_error", float("nan")))),
+                        "max_pct": fmt(100 * float(model.get("max_abs_rel_error", float("nan")))),
+                        "ns_node": fmt(1e9 * model.get("s_per_node_update", 0.0)),
+                        "ns_link": fmt(1e9 * model.get("s_per_link_update", 0.0)),
+                        "us_particle": fmt(1e6 * model.get("s_per_particle_step", 0.0)),
+                        "ms_step": fmt(1e3 * model.get("s_per_step", 0.0)), "intercept_s": fmt(model.get("intercept_s")),
+                        "table": table_of(val, ["run", "family", "steps", "particles", "links", "wall_s", "predicted_s",
+                                                "rel_error"]) if val is not None and len(val) else None}
     if df is not None:
         d = df.copy()
         if "wall_s" in d:

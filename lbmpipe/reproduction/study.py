@@ -804,8 +804,10 @@ def fit_cost_model(df: pd.DataFrame, target: str = "cpu_s") -> dict:
     used = [c for c in COST_FEATURES if (d[c] > 0).any()]
     cols = [np.ones(len(d))] + [(d[c] / thr).to_numpy(float) for c in used]
     X = np.stack(cols, axis=1)
-    model = {"formula": "wall_s = intercept_s + (s_per_node_update * node_updates + s_per_link_update * link_updates"
-                        " + s_per_particle_step * particle_steps) / threads",
+    # the formula names what was fitted: CPU seconds of the study's runs are not a wall time (the
+    # production runs' wall-time model is lbmpipe.reproduction.runcost)
+    model = {"formula": f"{target} = intercept_s + (s_per_node_update * node_updates + s_per_link_update * link_updates"
+                        " + s_per_particle_step * particle_steps)" + (" / threads" if per_thread else ""),
              "target": target, "work_per_thread_in_fit": per_thread, "n_runs": int(len(d)),
              "intercept_s": 0.0, "s_per_node_update": 0.0, "s_per_link_update": 0.0, "s_per_particle_step": 0.0,
              "links_per_area_lu": D3Q15_LINKS_PER_AREA,

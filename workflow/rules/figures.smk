@@ -2,7 +2,7 @@
 
 FIGURES = ["fig4_cylinders_re26", "fig5_cubes8_concentration", "fig6_cubes24_reynolds", "fig7a_shape_re9.4",
            "fig7b_shape_re26", "fig8_cylinder_orientation", "fig9_cube_orientation", "fig10_profiles"]
-TABLES = ["angular_velocity", "orientation", "orientation_summary", "packing", "run_health", "runtime"]
+TABLES = ["angular_velocity", "orientation", "orientation_summary", "packing", "run_health", "runtime", "cost_validation"]
 
 
 rule statistics:
@@ -59,7 +59,8 @@ ruleorder: combine_seeds > simulate_particles
 
 
 rule tables:
-    """Aggregated tables over all cases (CSV), incl. packing outcomes and run times."""
+    """Aggregated tables over all cases (CSV), incl. packing outcomes, run times and the wall-time
+    cost model of the level's runs with its leave-one-family-out validation."""
     conda:
         "../envs/lbmpipe.yaml"
     input:
@@ -70,6 +71,7 @@ rule tables:
     output:
         expand("results/{{fidelity}}/tables/{table}.csv", table=[t for t in TABLES if t != "runtime"]),
         runtime=report("results/{fidelity}/tables/runtime.csv", caption="../report/runtime.rst", category="Run time"),
+        cost_model="results/{fidelity}/tables/cost_model.json",
     log:
         "results/{fidelity}/logs/tables.log",
     script:

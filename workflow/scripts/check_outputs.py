@@ -60,6 +60,8 @@ if need(root / "claims.csv"):
 for ext in ("md", "html"):
     need(Path("paper") / f"reproduction_{fidelity}.{ext}")
 need(root / "study" / "recommendation.json")
+need(root / "tables" / "cost_model.json")
+need(root / "tables" / "cost_validation.csv")
 if problems:
     sys.exit(f"fidelity {fidelity}: " + "; ".join(problems))
 print(f"all outputs of fidelity {fidelity} present for {len(cases)} cases, {len(FIGURES)} figures, {len(TABLES)} tables")

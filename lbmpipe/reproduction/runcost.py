@@ -1,0 +1,205 @@
+"""Wall-time cost model of a level's production runs, validated on runs it was not fitted to.
+
+Every run times each effect of its step (``summary.json`` ``effects``). The model charges each
+group of effects to the work it scales with, so that every coefficient is measured on its own
+and none is a free parameter traded against another:
+
+====================  =========================================================  ==========================
+group                 effects                                                    work per step
+====================  =========================================================  ==========================
+fluid                 stream+collide, wall, flow-rate control                    fluid nodes
+particles             coupling, motion + remap, flux and mass corrections        particle boundary links
+collisions            impulses + overlap removal                                 particles
+rest of the loop      sampling, reporting, checkpoints                           1
+set-up and output     process wall time outside the time loop                    (once per run)
+====================  =========================================================  ==========================
+
+``wall_s = intercept_s + steps (s_per_node_update nodes + s_per_link_update links
++ s_per_particle_step particles + s_per_step) / threads``. Each coefficient is the median over
+the fitted runs of the group's seconds over its work (a ratio: long and short runs count alike).
+The measured wall time of a run is its Snakemake benchmark's wall seconds, or, for a run resumed
+from a checkpoint (the benchmark saw only its last part), the loop's accumulated seconds plus
+set-up. The production runs are single-threaded; dividing by ``threads`` assumes ideal scaling
+and is not validated here (``benchmarks/fluid.py`` measures the thread scaling).
+
+Validation is leave-one-family-out: a family is a case with its Reynolds numbers and seeds
+(``cyl8x16_c30`` holds ``cyl8x16_c30_re9.4/seed1`` ... ``cyl8x16_c30_re26/seed3``), so a run is
+never predicted by a model fitted to another seed or the other Reynolds number of its own
+packing. The model's error is the median absolute relative error of those predictions.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import re
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+#: effect-name prefixes of each group of the step (``solver`` names its effects this way)
+GROUPS = {"fluid": ("stream+collide", "wall", "flow-rate"), "particles": ("particles",), "collisions": ("collisions",)}
+#: the work each group is charged to, and the model's coefficient for it
+WORK = {"fluid": ("nodes", "s_per_node_update"), "particles": ("links", "s_per_link_update"),
+        "collisions": ("particles", "s_per_particle_step")}
+COLUMNS = ["run", "family", "steps", "threads", "nodes", "links", "particles", "wall_s", "loop_s", "fluid_s",
+           "particles_s", "collisions_s", "rest_s", "overhead_s", "resumed"]
+
+
+def family(run: str) -> str:
+    """The case family of a run: its case without the Reynolds number and seed
+    (``cyl8x16_c30_re9.4_nocoll/seed2`` -> ``cyl8x16_c30_nocoll``; ``flow_re26`` -> ``flow``)."""
+    case = run.split("/")[0]
+    return re.sub(r"_re[0-9.]+", "", case)
+
+
+def run_row(run: str, summary: dict, bench_s: float = float("nan")) -> dict | None:
+    """Work and measured seconds of one completed run, by group; None if the run did not
+    complete or did not time its effects."""
+    if summary.get("status") != "completed" or not summary.get("steps") or not summary.get("effects"):
+        return None
+    eff = summary["effects"]
+    groups = {g: sum(float(v) for k, v in eff.items() if k.startswith(pre)) for g, pre in GROUPS.items()}
+    loop = float(summary.get("wall_seconds") or 0.0)
+    setup = float(summary.get("setup_seconds") or 0.0)
+    part = summary.get("particles") or {}
+    resumed = not (math.isfinite(bench_s) and bench_s >= loop)
+    wall = loop + setup if resumed else float(bench_s)
+    return {"run": run, "family": family(run), "steps": int(summary["steps"]),
+            "threads": int(summary.get("threads") or 1), "nodes": int(summary.get("fluid_nodes") or 0),
+            "links": int(part.get("links") or 0), "particles": int(part.get("count") or 0),
+            "wall_s": wall, "loop_s": loop, **{f"{g}_s": v for g, v in groups.items()},
+            "rest_s": max(loop - sum(groups.values()), 0.0), "overhead_s": max(wall - loop, 0.0),
+            "resumed": bool(resumed)}
+
+
+def _bench_seconds(path: Path) -> float:
+    try:
+        df = pd.read_csv(path, sep="\t")
+        return float(pd.to_numeric(df["s"], errors="coerce").mean())
+    except (OSError, KeyError, ValueError, pd.errors.EmptyDataError):
+        return float("nan")
+
+
+def level_rows(level_dir: Path, runs: list[str]) -> pd.DataFrame:
+    """One row per completed run of ``runs`` under ``results/<level>`` (``cases/<run>/summary.json``
+    and ``benchmarks/<run>.simulate.tsv``)."""
+    rows = []
+    for run in runs:
+        path = Path(level_dir) / "cases" / run / "summary.json"
+        try:
+            summary = json.loads(path.read_text())
+        except (OSError, ValueError):
+            continue
+        row = run_row(run, summary, _bench_seconds(Path(level_dir) / "benchmarks" / f"{run}.simulate.tsv"))
+        if row is not None:
+            rows.append(row)
+    return pd.DataFrame(rows, columns=COLUMNS)
+
+
+def fit(rows: pd.DataFrame) -> dict:
+    """The model's coefficients from ``rows`` (:func:`level_rows`): per group, the median of
+    seconds x threads / (work x steps) over the runs that have that work."""
+    model = {"formula": "wall_s = intercept_s + steps * (s_per_node_update * fluid_nodes + s_per_link_update * links"
+                        " + s_per_particle_step * particles + s_per_step) / threads",
+             "n_runs": int(len(rows)), "intercept_s": 0.0, "s_per_step": 0.0,
+             **{coef: 0.0 for _, coef in WORK.values()}}
+    if not len(rows):
+        return model
+    thr = rows["threads"].clip(lower=1).astype(float)
+    steps = rows["steps"].astype(float)
+    for g, (work, coef) in WORK.items():
+        has = rows[work] > 0
+        if has.any():
+            model[coef] = float(np.median(rows.loc[has, f"{g}_s"] * thr[has] / (rows.loc[has, work] * steps[has])))
+    model["s_per_step"] = float(np.median(rows["rest_s"] * thr / steps))
+    fresh = ~rows["resumed"].astype(bool)
+    model["intercept_s"] = float(np.median(rows.loc[fresh, "overhead_s"])) if fresh.any() else 0.0
+    return model
+
+
+def predict(model: dict, steps, nodes, links=0.0, particles=0.0, threads=1):
+    """Wall seconds of runs (scalars or arrays) under ``model``."""
+    t = np.maximum(np.asarray(threads, dtype=float), 1.0)
+    per_step = (model["s_per_node_update"] * np.asarray(nodes, float) + model["s_per_link_update"] * np.asarray(links, float)
+                + model["s_per_particle_step"] * np.asarray(particles, float) + model["s_per_step"])
+    return model["intercept_s"] + np.asarray(steps, float) * per_step / t
+
+
+def validate(rows: pd.DataFrame) -> pd.DataFrame:
+    """Leave-one-family-out predictions: each run predicted by the model fitted to the other
+    families' runs. Adds ``predicted_s``, ``rel_error`` (predicted / measured - 1) and
+    ``fitted_on`` (runs in that fit); NaN where no other family exists."""
+    out = rows.copy()
+    out["predicted_s"], out["rel_error"], out["fitted_on"] = np.nan, np.nan, 0
+    for fam in rows["family"].unique():
+        held = rows["family"] == fam
+        train = rows[~held]
+        if not len(train):
+            continue
+        m = fit(train)
+        pred = predict(m, rows.loc[held, "steps"], rows.loc[held, "nodes"], rows.loc[held, "links"],
+                       rows.loc[held, "particles"], rows.loc[held, "threads"])
+        out.loc[held, "predicted_s"] = pred
+        out.loc[held, "rel_error"] = pred / rows.loc[held, "wall_s"] - 1.0
+        out.loc[held, "fitted_on"] = len(train)
+    return out
+
+
+def build(level_dir: Path, runs: list[str], level: str) -> tuple[dict, pd.DataFrame]:
+    """The level's model (fitted to all its completed runs) with its leave-one-family-out
+    validation, and the per-run validation table."""
+    rows = level_rows(level_dir, runs)
+    model = fit(rows)
+    val = validate(rows)
+    err = val["rel_error"].abs().dropna()
+    model.update({
+        "level": level, "target": "wall_s (Snakemake benchmark; loop + set-up for a resumed run)",
+        "validation": "leave one case family out (both Reynolds numbers and every seed of a case held out together)",
+        "families": int(rows["family"].nunique()) if len(rows) else 0,
+        "n_validated": int(len(err)),
+        "median_abs_rel_error": float(err.median()) if len(err) else float("nan"),
+        "max_abs_rel_error": float(err.max()) if len(err) else float("nan"),
+        "threads_measured": sorted(int(t) for t in rows["threads"].unique()) if len(rows) else [],
+        "links_per_area_lu": links_per_area_lu(level_dir, rows),
+    })
+    return model, val
+
+
+def write(level_dir: Path, runs: list[str], level: str, model_path: Path, table_path: Path) -> dict:
+    """:func:`build` and write ``cost_model.json`` and ``cost_validation.csv``."""
+    model, val = build(level_dir, runs, level)
+    Path(model_path).parent.mkdir(parents=True, exist_ok=True)
+    Path(model_path).write_text(json.dumps(model, indent=2, allow_nan=True) + "\n")
+    val.to_csv(table_path, index=False, float_format="%.6g")
+    return model
+
+
+def links_per_area_lu(level_dir: Path, rows: pd.DataFrame) -> float:
+    """Median measured boundary links per particle surface area (lattice units) over the runs
+    with particles (``study.links_per_area`` of each run)."""
+    from .study import links_per_area
+
+    vals = []
+    for run in rows.loc[rows["links"] > 0, "run"] if len(rows) else []:
+        d = Path(level_dir) / "cases" / run
+        summary = json.loads((d / "summary.json").read_text())
+        v = links_per_area(summary, d / "particles_static.csv")
+        if math.isfinite(v):
+            vals.append(v)
+    return float(np.median(vals)) if vals else float("nan")
+
+
+def predict_scene(model: dict, scene, params) -> float:
+    """Predicted wall seconds of a validated ``Scene`` with lattice parameters ``params``: the
+    particles' links estimated from their surface area (``links_per_area_lu`` of the model),
+    their count as the packer or random placement would make it."""
+    from .study import D3Q15_LINKS_PER_AREA, scene_particle_load
+
+    count, area_mm2 = scene_particle_load(scene)
+    lpa = model.get("links_per_area_lu")
+    lpa = float(lpa) if lpa is not None and math.isfinite(float(lpa)) else D3Q15_LINKS_PER_AREA
+    links = lpa * area_mm2 / scene.numerics.dx_mm**2
+    threads = scene.run.threads or 1
+    return float(predict(model, params.n_steps, params.fluid_nodes, links, count, threads))

@@ -1,0 +1,129 @@
+"""The wall-time cost model of production runs (lbmpipe.reproduction.runcost): each group of the
+step charged to its own work, validated with every case family held out of its own fit."""
+
+import json
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from lbmpipe.reproduction import runcost
+
+NODE, LINK, PART, STEP, SETUP = 50e-9, 30e-9, 10e-6, 5e-4, 3.0
+
+
+def _summary(steps, nodes=197600, links=0, count=0, scale=1.0, threads=1, loop_extra=0.0):
+    eff = {"stream+collide D3Q15 BGK": 0.9 * scale * NODE * nodes * steps / threads,
+           "wall: half-way bounce-back": 0.1 * scale * NODE * nodes * steps / threads}
+    if links:
+        eff["particles: Ladd coupling"] = 0.7 * scale * LINK * links * steps / threads
+        eff["particles: motion + remap"] = 0.3 * scale * LINK * links * steps / threads
+    if count:
+        eff["collisions: impulses + overlap removal"] = scale * PART * count * steps / threads
+    loop = sum(eff.values()) + scale * STEP * steps / threads + loop_extra
+    return {"status": "completed", "steps": steps, "wall_seconds": loop, "setup_seconds": 1.0, "threads": threads,
+            "fluid_nodes": nodes, "particles": {"links": links, "count": count}, "effects": eff}
+
+
+def _write_level(tmp_path, runs):
+    for run, (summary, bench) in runs.items():
+        d = tmp_path / "cases" / run
+        d.mkdir(parents=True)
+        (d / "summary.json").write_text(json.dumps(summary))
+        if bench is not None:
+            b = tmp_path / "benchmarks" / f"{run}.simulate.tsv"
+            b.parent.mkdir(parents=True, exist_ok=True)
+            b.write_text(f"s\th:m:s\tmax_rss\tcpu_time\n{bench}\t0:00:01\t100\t{bench}\n")
+    return list(runs)
+
+
+def test_family_holds_both_reynolds_numbers_and_every_seed_of_a_case():
+    assert runcost.family("cyl8x16_c30_re9.4_nocoll/seed2") == "cyl8x16_c30_nocoll"
+    assert runcost.family("cyl8x16_c30_re26/seed1") == runcost.family("cyl8x16_c30_re9.4/seed3") == "cyl8x16_c30"
+    assert runcost.family("flow_re26") == runcost.family("flow_re9.4") == "flow"
+
+
+def test_each_group_of_the_step_is_charged_to_its_own_work(tmp_path):
+    # runs on the same host (one scale): the fit recovers every coefficient and predicts every
+    # held-out family exactly, however different its mix of fluid, links and particles
+    specs = {"flow_re9.4": (1000, 0, 0), "cube16_c30_re9.4/seed1": (2000, 110000, 14),
+             "cyl8x8_c30_re9.4/seed1": (3000, 220000, 146), "cyl8x16_c50_re26/seed1": (1500, 280000, 122)}
+    runs = {r: (s := _summary(n, links=lk, count=c), s["wall_seconds"] + SETUP) for r, (n, lk, c) in specs.items()}
+    names = _write_level(tmp_path, runs)
+    model, val = runcost.build(tmp_path, names, "test")
+    assert model["s_per_node_update"] == pytest.approx(NODE)
+    assert model["s_per_link_update"] == pytest.approx(LINK)
+    assert model["s_per_particle_step"] == pytest.approx(PART)
+    assert model["s_per_step"] == pytest.approx(STEP)
+    assert model["intercept_s"] == pytest.approx(SETUP)
+    assert model["families"] == 4 and model["n_validated"] == 4
+    assert np.allclose(val["rel_error"], 0.0, atol=1e-9)
+    assert model["median_abs_rel_error"] == pytest.approx(0.0, abs=1e-9)
+
+
+def test_a_family_is_never_predicted_by_its_own_runs(tmp_path):
+    # one family runs twice as slow as the rest: held out, the others' model under-predicts it by
+    # half; fitted with it, the model would have absorbed part of that
+    runs = {}
+    for k, (case, scale) in enumerate([("cube8_c30_re9.4", 2.0), ("cyl16x16_c30_re9.4", 1.0),
+                                       ("cyl8x8_c30_re9.4", 1.0), ("cube16_c30_re9.4", 1.0)]):
+        for seed in (1, 2):
+            s = _summary(2000, links=100000 * (k + 1), count=10 * (k + 1), scale=scale)
+            runs[f"{case}/seed{seed}"] = (s, s["wall_seconds"] + SETUP * scale)
+    names = _write_level(tmp_path, runs)
+    _, val = runcost.build(tmp_path, names, "test")
+    slow = val[val["family"] == "cube8_c30"]
+    assert np.allclose(slow["rel_error"], -0.5, atol=1e-9)
+    assert (slow["fitted_on"] == 6).all()
+    assert np.allclose(val.loc[val["family"] != "cube8_c30", "rel_error"], 0.0, atol=1e-9)
+
+
+def test_a_resumed_run_counts_its_loop_and_set_up_not_its_last_process_alone(tmp_path):
+    s = _summary(4000, links=100000, count=10)
+    row = runcost.run_row("cube16_c30_re9.4/seed1", s, bench_s=0.25 * s["wall_seconds"])
+    assert row["resumed"] and row["wall_s"] == pytest.approx(s["wall_seconds"] + 1.0)
+    fresh = runcost.run_row("cube16_c30_re9.4/seed1", s, bench_s=s["wall_seconds"] + 2.0)
+    assert not fresh["resumed"] and fresh["overhead_s"] == pytest.approx(2.0)
+    assert runcost.run_row("x", {**s, "status": "failed"}) is None
+
+
+def test_work_divides_over_threads_in_the_prediction():
+    model = {"intercept_s": 2.0, "s_per_step": 1e-3, "s_per_node_update": 1e-8, "s_per_link_update": 2e-8,
+             "s_per_particle_step": 1e-5}
+    one = runcost.predict(model, 1000, 100000, 50000, 20, threads=1)
+    two = runcost.predict(model, 1000, 100000, 50000, 20, threads=2)
+    assert one == pytest.approx(2.0 + 1000 * (1e-3 + 1e-3 + 1e-3 + 2e-4))
+    assert two - 2.0 == pytest.approx((one - 2.0) / 2)
+
+
+def test_lbmpipe_check_prints_the_wall_time_prediction_with_its_validated_error(tmp_path, capsys):
+    from pathlib import Path
+
+    from lbmpipe.cli import _duration, run_cli
+    from lbmpipe.scene import load_scene
+    from lbmpipe.units import derive
+
+    model = {"intercept_s": 2.0, "s_per_step": 5e-4, "s_per_node_update": 5e-8, "s_per_link_update": 5e-8,
+             "s_per_particle_step": 1e-5, "median_abs_rel_error": 0.083, "n_validated": 21,
+             "threads_measured": [1], "links_per_area_lu": 5.0}
+    mpath = tmp_path / "cost_model.json"
+    mpath.write_text(json.dumps(model))
+    scene = Path(__file__).resolve().parents[1] / "scenes" / "pipe_re9.4.yaml"
+    params = derive(load_scene(scene))
+    assert run_cli(["check", str(scene), "--cost-model", str(mpath)]) == 0
+    line = next(ln for ln in capsys.readouterr().out.splitlines() if "predicted run time" in ln)
+    threads = load_scene(scene).run.threads or 1
+    expected = 2.0 + params.n_steps * (5e-8 * params.fluid_nodes + 5e-4) / threads
+    assert _duration(expected) in line
+    assert "median error 8 % on 21 production runs held out" in line and str(mpath) in line
+
+
+def test_validation_table_and_model_are_written_beside_the_level_tables(tmp_path):
+    runs = {"flow_re9.4": (s := _summary(1000), s["wall_seconds"] + SETUP),
+            "cube16_c30_re9.4/seed1": (t := _summary(1000, links=1000, count=2), t["wall_seconds"] + SETUP)}
+    names = _write_level(tmp_path, runs)
+    model = runcost.write(tmp_path, names, "test", tmp_path / "tables" / "cost_model.json",
+                          tmp_path / "tables" / "cost_validation.csv")
+    assert json.loads((tmp_path / "tables" / "cost_model.json").read_text())["n_runs"] == model["n_runs"] == 2
+    val = pd.read_csv(tmp_path / "tables" / "cost_validation.csv")
+    assert list(val["run"]) == names and {"predicted_s", "rel_error", "family"} <= set(val.columns)
