@@ -7,9 +7,11 @@ from snakemake.utils import min_version, validate
 
 from pathlib import Path
 
-from lbmpipe.reproduction.cases import (CONFIG_SCHEMA, case_scene, config_problems, estimate_minutes, level_runs,
-                                       level_seeds, packing_id, run_case, split_run, write_case_scene)
+from lbmpipe.reproduction.cases import (CONFIG_SCHEMA, case_scene, config_problems, estimate_minutes, level_cases,
+                                       level_runs, level_seeds, packing_id, run_case, split_run, write_case_scene)
 from lbmpipe.reproduction.literate import study_level
+from lbmpipe.reproduction.methods import comparison_level
+from lbmpipe.reproduction.methods import write as write_method_comparison
 from lbmpipe.reproduction.seeds import write_combined
 from lbmpipe.reproduction.statistics import write_case_outputs
 
@@ -69,9 +71,13 @@ PAPER_EXTRA_INPUTS = [
 
 
 def paper_extra_inputs(wildcards):
-    # a level with `study_level` shows that level's stability table and study (the same lattice)
+    # a level with `study_level` shows that level's stability table and study (the same lattice);
+    # a level another one compares its method with shows that comparison
     level = study_level(config, wildcards.fidelity)
-    return [pattern.format(fidelity=level) for pattern in PAPER_EXTRA_INPUTS]
+    extra = [pattern.format(fidelity=level) for pattern in PAPER_EXTRA_INPUTS]
+    if comparison_level(config, wildcards.fidelity) is not None:
+        extra.append(f"results/{wildcards.fidelity}/method/summary.json")
+    return extra
 
 
 include: "workflow/rules/common.smk"

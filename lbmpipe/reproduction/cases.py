@@ -23,11 +23,20 @@ from ..scene import Scene, SceneError
 from .pipe import DT_PER_MM_S, FLOWS, PIPE, pipe_scene, time_step
 
 
+#: The numerical methods a level can run (its ``method`` key). ``paper``: BGK, Eq. (2), with half-way
+#: bounce-back at the pipe wall, as the paper; the wall then sits at a place that depends on tau (1.78
+#: at Re 9.4). ``accurate``: TRT with the magic parameter 1/4 (the bounce-back wall's place independent
+#: of tau) and the Bouzidi interpolated pipe wall. In both the particles keep the paper's Ladd
+#: bounce-back coupling, Eqs. (9)-(12): an interpolated moving surface is not the paper's model.
+METHODS = {"paper": {}, "accurate": {"collision": "trt", "trt_magic": 0.25, "wall": "bouzidi"}}
+
+
 def fidelity_numerics(fidelity: dict, reynolds: float | None = None) -> dict:
-    """Scene ``numerics`` for a fidelity level: ``dx_mm`` and ``dt_s`` (or ``dt_per_mm_s``); at
-    Re 26 the time step is multiplied by ``re26_dt_factor`` (default 1): the paper's dt gives a
-    centre-line Mach number of 0.56 there; 0.5 halves it (Mach 0.28, paper/reading.md's third row)."""
-    num = {k: v for k, v in fidelity.get("numerics", {}).items()}
+    """Scene ``numerics`` for a fidelity level: its ``method`` (:data:`METHODS`; the ``paper``
+    method is the scene's defaults), ``dx_mm`` and ``dt_s`` (or ``dt_per_mm_s``); at Re 26 the
+    time step is multiplied by ``re26_dt_factor`` (default 1): the paper's dt gives a centre-line
+    Mach number of 0.56 there; 0.5 halves it (Mach 0.28, paper/reading.md's third row)."""
+    num = {**METHODS[fidelity.get("method", "paper")], **fidelity.get("numerics", {})}
     dx = float(fidelity["dx_mm"])
     num["dx_mm"] = dx
     num["dt_s"] = float(fidelity.get("dt_s", time_step(dx, fidelity.get("dt_per_mm_s", DT_PER_MM_S))))
@@ -104,12 +113,20 @@ def level_seeds(fidelity: dict) -> list[int]:
     return list(range(1, int(fidelity.get("seeds", 1)) + 1))
 
 
+def level_cases(config: dict, fidelity_name: str) -> list[str]:
+    """The cases a level runs: its ``cases`` list (a subset of the config's, e.g. a second method
+    run on the cases its claims need), else every case of the config."""
+    subset = config["fidelities"][fidelity_name].get("cases")
+    return sorted(config["cases"] if subset is None else subset)
+
+
 def level_runs(config: dict, fidelity_name: str) -> list[str]:
     """Every simulation run of a level: each particle-free case, and each particle case once per
-    packing seed (``case/seed<k>``) in a level with ``seeds``, else once (``case``)."""
+    packing seed (``case/seed<k>``) in a level with ``seeds``, else once (``case``); only the
+    level's ``cases`` when it names them."""
     fid = config["fidelities"][fidelity_name]
     runs = []
-    for name in sorted(config["cases"]):
+    for name in level_cases(config, fidelity_name):
         if config["cases"][name].get("particles") is None or "seeds" not in fid:
             runs.append(name)
         else:
@@ -283,6 +300,17 @@ def config_problems(config: dict, schema_path: str | Path) -> list[str]:
     if config["fidelity"] not in config["fidelities"]:
         return [f"config error in fidelity: {config['fidelity']!r} is not one of {sorted(config['fidelities'])}. "
                 "Fix: add it under `fidelities` or pick an existing level (--config fidelity=smoke)"]
+    for fname, fid in config["fidelities"].items():
+        unknown = [c for c in fid.get("cases", []) if c not in config["cases"]]
+        if unknown:
+            out.append(f"config error in fidelities.{fname}.cases: {', '.join(unknown)} not among `cases`. "
+                       "Fix: name cases defined under `cases`")
+        other = fid.get("compare_with")
+        if other is not None and other not in config["fidelities"]:
+            out.append(f"config error in fidelities.{fname}.compare_with: {other!r} is not a level. "
+                       f"Fix: one of {sorted(config['fidelities'])}")
+    if out:
+        return out
     for cname, case in config["cases"].items():
         for fname, fid in config["fidelities"].items():
             n_before = len(out)

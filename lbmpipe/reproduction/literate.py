@@ -493,6 +493,47 @@ def runtime_section(fid_dir: Path, fidelity: str) -> dict:
     return sec
 
 
+def method_comparison_section(fid_dir: Path, fidelity: str, config: dict) -> dict | None:
+    """What the method changes (``lbmpipe.reproduction.methods``): for a level another one
+    compares with, that level, its runs done and planned, and the comparison's summary, claims
+    and paired runs (``results/<level>/method/``); for an accurate-method level, the level it is
+    compared with; else None."""
+    from .health import read_json
+    from .methods import comparison_level
+
+    fid = (config.get("fidelities") or {}).get(fidelity) or {}
+    if fid.get("compare_with"):
+        return {"is_accurate": True, "paper_level": fid["compare_with"]}
+    other = comparison_level(config, fidelity)
+    if other is None:
+        return None
+    mdir = Path(fid_dir) / "method"
+    summ = read_json(mdir / "summary.json") or {}
+    runs = _read_csv(mdir / "runs.csv")
+    claims = _read_csv(mdir / "claims.csv")
+    done = sum(1 for r in _level_runs(config, other)
+               if (read_json(Path(fid_dir).parent / other / "cases" / r / "summary.json") or {}).get("status") == "completed")
+    flows = [{"run": f["run"], "paper_pct": fmt(100 * f["paper"]), "accurate_pct": fmt(100 * f["accurate"])}
+             for f in summ.get("flows", [])]
+    return {"is_accurate": False, "level": other, "planned": summ.get("accurate_runs_planned", 0), "done": done,
+            "pairs": summ.get("pairs", 0), "omega_compared": summ.get("omega_compared", 0),
+            "omega_significant": summ.get("omega_significant", 0),
+            "omega_median_pct": fmt(100 * float(summ.get("omega_median_abs_rel_diff", float("nan")))),
+            "angle_compared": summ.get("angle_compared", 0), "angle_significant": summ.get("angle_significant", 0),
+            "flows": flows, "claims_compared": summ.get("claims_compared", 0),
+            "claims_changed": ", ".join(str(c) for c in summ.get("claims_changed", [])) or "none",
+            "claims": table_of(claims[claims["same"] != "not compared"], ["claim", "verdict_paper", "verdict_accurate", "same"])
+            if claims is not None and len(claims) and (claims["same"] != "not compared").any() else None,
+            "runs": table_of(runs, ["run", "observable", "paper", "paper_ci95", "accurate", "accurate_ci95", "rel_diff",
+                                    "significant"]) if runs is not None and len(runs) else None}
+
+
+def _level_runs(config: dict, level: str) -> list[str]:
+    from .cases import level_runs
+
+    return level_runs(config, level)
+
+
 def health_section(fid_dir: Path, config: dict) -> dict:
     """Run health and diagnostics, one row per case (:func:`lbmpipe.reproduction.health.health_row`:
     from ``summary.json``, ``flow_rate.csv`` and ``stats.json``), thresholds from ``config.yaml``'s
@@ -921,6 +962,7 @@ def build_context(repo_root: Path, fid_dir: Path, fidelity: str, config: dict, o
         "study_level": study_level(config, fidelity),
         "health": health_ctx,
         "runtime": runtime_section(fid_dir, fidelity),
+        "method": method_comparison_section(fid_dir, fidelity, config),
         "missing": lambda rel: f"not built at this level: `{_rel_to(fid_dir, repo_root)}/{rel}` missing",
     }
 

@@ -104,6 +104,7 @@ def _snapshot_files(name):
         def drawable(d):
             return any(Path(d, f).exists() for f in ("last_frame.csv", "particles.parquet"))
 
+        ran = set(level_cases(config, wildcards.fidelity))  # a level may run a subset of the cases
         return [f"results/{wildcards.fidelity}/cases/{c}{sub}/{name}" for c in PARTICLE_CASES
-                if NEW_RUNS == "all" or drawable(f"results/{wildcards.fidelity}/cases/{c}{sub}")]
+                if c in ran and (NEW_RUNS == "all" or drawable(f"results/{wildcards.fidelity}/cases/{c}{sub}"))]
     return files

@@ -16,6 +16,38 @@ rule claims:
         "../scripts/claims.py"
 
 
+def _method_inputs(wildcards):
+    # the accurate-method level's claims and the runs of both levels it pairs, where present: the
+    # comparison reads what exists (a level's production is finished in parts)
+    other = comparison_level(config, wildcards.fidelity)
+    if other is None:
+        return []
+    files = [f for f in [f"results/{other}/claims.csv"] if Path(f).exists()]
+    for run in level_runs(config, other):
+        for lvl in (other, wildcards.fidelity):
+            files += [ancient(f) for f in (f"results/{lvl}/cases/{run}/summary.json", f"results/{lvl}/cases/{run}/stats.json")
+                      if Path(f).exists()]
+    return files
+
+
+rule method_comparison:
+    """The paper's method against the accurate one (a level with `compare_with` this level): each
+    accurate run paired with the paper-method run of the same packing, observable by observable,
+    and each claim's verdict under both (results/<level>/method/)."""
+    localrule: True
+    input:
+        claims="results/{fidelity}/claims.csv",
+        other=_method_inputs,
+    output:
+        runs="results/{fidelity}/method/runs.csv",
+        claims="results/{fidelity}/method/claims.csv",
+        summary="results/{fidelity}/method/summary.json",
+    log:
+        "results/{fidelity}/logs/method_comparison.log",
+    run:
+        write_method_comparison(config, wildcards.fidelity, Path("results"), Path(output.summary).parent)
+
+
 rule paper:
     """The reproduction: equations linked to the code, parameters, figures beside the paper's
     captions, claims, stability, accuracy against cost, run cost against the paper's."""

@@ -1,0 +1,157 @@
+"""What the numerical method changes: the paper's method (BGK, half-way bounce-back) against the
+accurate one (TRT with magic 1/4, Bouzidi pipe wall; ``cases.METHODS``), run by run and claim by
+claim.
+
+A level with ``method: accurate`` and ``compare_with: <level>`` runs a subset of the cases on the
+same lattice, run lengths and packings as the paper-method level. Each of its runs is paired with
+the paper-method run of the same case and packing seed, so the packing's large effect on the mean
+spin (the seed-to-seed scatter of issue "steady results") cancels from the difference. Per pair and
+observable: both values with their 95 % intervals, the difference relative to the paper method's
+value, and whether it exceeds the two intervals combined (independent runs: sqrt(ci_a^2 + ci_p^2)).
+Observables: mean |Omega| about x, y, z (Figs. 4-7), the mean orientation angle (Figs. 8-9), and
+the flow profile's relative L2 distance from Poiseuille (Fig. 10; for the particle-free flows this is
+the wall treatment's own error). Per claim: the verdict of each level's ``claims.csv`` side by
+side (the accurate level's verdicts rest on its one packing per case).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import pandas as pd
+
+from .cases import level_runs
+
+#: the orientation angle of each shape that Figs. 8-9 show (stats.json ``orientation``)
+ANGLE_KEY = {"cylinder": "cyl_axis_angle", "cube": "cube_projected_angle"}
+RUN_COLUMNS = ["run", "observable", "paper", "paper_ci95", "accurate", "accurate_ci95", "rel_diff", "rel_diff_ci95",
+               "significant", "paper_flags", "accurate_flags"]
+CLAIM_COLUMNS = ["claim", "statement", "verdict_paper", "verdict_accurate", "same", "reason_accurate"]
+
+
+def comparison_level(config: dict, level: str) -> str | None:
+    """The level that runs the accurate method against ``level`` (its ``compare_with``), if any."""
+    for name, fid in config["fidelities"].items():
+        if fid.get("compare_with") == level:
+            return name
+    return None
+
+
+def _read(path: Path) -> dict | None:
+    try:
+        return json.loads(Path(path).read_text())
+    except (OSError, ValueError):
+        return None
+
+
+def _f(v) -> float:
+    try:
+        x = float(v)
+    except (TypeError, ValueError):
+        return float("nan")
+    return x
+
+
+def observables(run_dir: Path) -> dict[str, tuple[float, float]] | None:
+    """(value, 95 % half-width) of each compared observable of one completed run; None if the
+    run is missing or did not complete. A particle-free run has only the profile's error."""
+    summary = _read(Path(run_dir) / "summary.json")
+    if summary is None or summary.get("status") != "completed":
+        return None
+    out = {"profile_error_rel_l2": (_f(summary.get("profile_error_rel_l2")), float("nan"))}
+    stats = _read(Path(run_dir) / "stats.json")
+    if stats is None:
+        return out
+    mean, ci = stats.get("mean_abs_omega_rad_s") or {}, stats.get("ci95_rad_s") or {}
+    for ax in "xyz":
+        out[f"mean_abs_omega_{ax}"] = (_f(mean.get(ax)), _f(ci.get(ax)))
+    angle = (stats.get("orientation") or {}).get(ANGLE_KEY.get(stats.get("shape"), ""), {})
+    if angle:
+        out["mean_angle_deg"] = (_f(angle.get("mean_deg")), _f(angle.get("ci95_deg")))
+    return out
+
+
+def _flags(run_dir: Path) -> str:
+    stats = _read(Path(run_dir) / "stats.json") or {}
+    return ";".join(stats.get("flags") or [])
+
+
+def run_rows(config: dict, paper_level: str, accurate_level: str, root: Path = Path("results")) -> pd.DataFrame:
+    """One row per paired run and observable, for the accurate level's runs that completed and
+    whose paper-method run of the same case and seed completed too."""
+    rows = []
+    for run in level_runs(config, accurate_level):
+        pdir, adir = Path(root) / paper_level / "cases" / run, Path(root) / accurate_level / "cases" / run
+        p, a = observables(pdir), observables(adir)
+        if p is None or a is None:
+            continue
+        for obs in [k for k in p if k in a]:
+            (vp, cp), (va, ca) = p[obs], a[obs]
+            both = math.hypot(cp, ca) if math.isfinite(cp) and math.isfinite(ca) else float("nan")
+            rel = (va - vp) / vp if vp else float("nan")
+            rows.append({"run": run, "observable": obs, "paper": vp, "paper_ci95": cp, "accurate": va,
+                         "accurate_ci95": ca, "rel_diff": rel,
+                         "rel_diff_ci95": both / abs(vp) if vp else float("nan"),
+                         "significant": bool(abs(va - vp) > both) if math.isfinite(both) else None,
+                         "paper_flags": _flags(pdir), "accurate_flags": _flags(adir)})
+    return pd.DataFrame(rows, columns=RUN_COLUMNS)
+
+
+def claim_rows(paper_claims: Path, accurate_claims: Path) -> pd.DataFrame:
+    """Each claim's verdict under both methods (``claims.csv`` of each level); ``same`` is
+    ``yes``/``no``, or ``not compared`` where the accurate level has no claims file."""
+    p = pd.read_csv(paper_claims) if Path(paper_claims).exists() else pd.DataFrame(columns=["claim", "statement", "verdict"])
+    a = pd.read_csv(accurate_claims) if Path(accurate_claims).exists() else None
+    rows = []
+    for _, r in p.iterrows():
+        ra = None if a is None else a[a["claim"] == r["claim"]]
+        va = None if ra is None or not len(ra) else str(ra["verdict"].iloc[0])
+        rows.append({"claim": int(r["claim"]), "statement": r["statement"], "verdict_paper": r["verdict"],
+                     "verdict_accurate": va or "not run",
+                     "same": "not compared" if va is None else ("yes" if va == r["verdict"] else "no"),
+                     "reason_accurate": "" if ra is None or not len(ra) else str(ra["reason"].iloc[0])})
+    return pd.DataFrame(rows, columns=CLAIM_COLUMNS)
+
+
+def summary(runs: pd.DataFrame, claims: pd.DataFrame) -> dict:
+    """Counts for the document: paired runs, significant differences per observable group,
+    the median |relative difference| of mean |Omega|, the flows' profile errors, and the claims
+    whose verdict changes."""
+    out = {"pairs": int(runs["run"].nunique()) if len(runs) else 0}
+    om = runs[runs["observable"].str.startswith("mean_abs_omega")] if len(runs) else runs
+    out["omega_compared"] = int(len(om))
+    out["omega_significant"] = int((om["significant"] == True).sum()) if len(om) else 0  # noqa: E712
+    out["omega_median_abs_rel_diff"] = float(om["rel_diff"].abs().median()) if len(om) else float("nan")
+    ang = runs[runs["observable"] == "mean_angle_deg"] if len(runs) else runs
+    out["angle_compared"] = int(ang["significant"].notna().sum()) if len(ang) else 0
+    out["angle_significant"] = int((ang["significant"] == True).sum()) if len(ang) else 0  # noqa: E712
+    flows = runs[(runs["observable"] == "profile_error_rel_l2") & runs["run"].str.startswith("flow")] if len(runs) else runs
+    out["flows"] = [{"run": r["run"], "paper": float(r["paper"]), "accurate": float(r["accurate"])}
+                    for _, r in flows.iterrows()]
+    compared = claims[claims["same"] != "not compared"] if len(claims) else claims
+    out["claims_compared"] = int(len(compared))
+    out["claims_changed"] = [int(c) for c in compared.loc[compared["same"] == "no", "claim"]] if len(compared) else []
+    return out
+
+
+def write(config: dict, paper_level: str, root: Path, out_dir: Path) -> dict:
+    """Write ``runs.csv``, ``claims.csv`` and ``summary.json`` of the comparison of
+    ``paper_level`` with its accurate-method level into ``out_dir`` (empty tables when the
+    config has no such level or none of its runs is done)."""
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    acc = comparison_level(config, paper_level)
+    runs = run_rows(config, paper_level, acc, root) if acc else pd.DataFrame(columns=RUN_COLUMNS)
+    claims = claim_rows(Path(root) / paper_level / "claims.csv",
+                        Path(root) / acc / "claims.csv" if acc else Path("/nonexistent"))
+    if not len(runs):  # no accurate run is done: no verdict of that level rests on a run
+        claims["verdict_accurate"], claims["same"], claims["reason_accurate"] = "not run", "not compared", ""
+    runs.to_csv(out_dir / "runs.csv", index=False, float_format="%.6g")
+    claims.to_csv(out_dir / "claims.csv", index=False)
+    s = {"paper_level": paper_level, "accurate_level": acc,
+         "accurate_runs_planned": len(level_runs(config, acc)) if acc else 0, **summary(runs, claims)}
+    (out_dir / "summary.json").write_text(json.dumps(s, indent=2, allow_nan=True) + "\n")
+    return s
+

@@ -1,0 +1,115 @@
+"""The method dimension: the paper's BGK with half-way bounce-back against TRT (magic 1/4) with the
+Bouzidi pipe wall, on the same lattice and packings, compared run by run and claim by claim."""
+
+import copy
+import json
+from pathlib import Path
+
+import pandas as pd
+import pytest
+import yaml
+
+from lbmpipe.reproduction import cases, methods
+from lbmpipe.scene import Scene
+from lbmpipe.units import derive
+
+ROOT = Path(__file__).resolve().parents[1]
+CONFIG = yaml.safe_load((ROOT / "config.yaml").read_text())
+
+
+def test_accurate_level_changes_only_collision_and_wall_on_the_same_packing():
+    name, case = cases.run_case(CONFIG, "cyl8x16_c30_re9.4/seed1")
+    paper = cases.case_scene(name, case, "credible", CONFIG["fidelities"]["credible"])
+    acc = cases.case_scene(name, case, "credible_accurate", CONFIG["fidelities"]["credible_accurate"])
+    assert acc["numerics"] == {**paper["numerics"], "collision": "trt", "trt_magic": 0.25, "wall": "bouzidi"}
+    assert acc["particles"] == paper["particles"] and acc["run"] == paper["run"]
+    # the same relaxation time: the method changes the operator, not the physics asked for
+    p_params, a_params = derive(Scene.model_validate(paper)), derive(Scene.model_validate(acc))
+    assert a_params.tau == pytest.approx(p_params.tau) and a_params.n_steps == p_params.n_steps
+    # magic 1/4: (tau+ - 1/2)(tau- - 1/2) = 1/4
+    tau_minus = 1.0 / a_params.omega_minus
+    assert (a_params.tau - 0.5) * (tau_minus - 0.5) == pytest.approx(0.25)
+
+
+def test_paper_method_level_scenes_are_unchanged_by_the_method_dimension():
+    name, case = cases.run_case(CONFIG, "cube16_c30_re9.4/seed2")
+    num = cases.case_scene(name, case, "credible", CONFIG["fidelities"]["credible"])["numerics"]
+    assert "collision" not in num and "wall" not in num  # the scene's defaults: BGK, half-way bounce-back
+
+
+def test_a_level_with_a_case_list_runs_only_those_cases_once_per_seed():
+    runs = cases.level_runs(CONFIG, "credible_accurate")
+    subset = CONFIG["fidelities"]["credible_accurate"]["cases"]
+    assert {cases.split_run(r)[0] for r in runs} == set(subset)
+    assert all(r.endswith("/seed1") for r in runs if CONFIG["cases"][cases.split_run(r)[0]].get("particles"))
+    assert methods.comparison_level(CONFIG, "credible") == "credible_accurate"
+
+
+def test_config_naming_an_unknown_case_or_level_is_an_error_with_its_fix():
+    bad = copy.deepcopy(CONFIG)
+    bad["fidelities"]["credible_accurate"]["cases"] = ["flow_re9.4", "cyl99_c30_re9.4"]
+    bad["fidelities"]["credible_accurate"]["compare_with"] = "nosuchlevel"
+    probs = cases.config_problems(bad, ROOT / cases.CONFIG_SCHEMA)
+    assert any("fidelities.credible_accurate.cases: cyl99_c30_re9.4" in p and "Fix:" in p for p in probs)
+    assert any("fidelities.credible_accurate.compare_with" in p and "Fix:" in p for p in probs)
+
+
+def _run(root, level, run, omega, ci, angle=None, profile=0.01, flags=()):
+    d = root / level / "cases" / run
+    d.mkdir(parents=True)
+    (d / "summary.json").write_text(json.dumps({"status": "completed", "profile_error_rel_l2": profile}))
+    if omega is not None:
+        stats = {"shape": "cylinder", "mean_abs_omega_rad_s": dict(zip("xyz", omega)), "ci95_rad_s": dict(zip("xyz", ci)),
+                 "orientation": {"cyl_axis_angle": {"mean_deg": angle, "ci95_deg": 1.0}}, "flags": list(flags)}
+        (d / "stats.json").write_text(json.dumps(stats))
+
+
+def _config():
+    return {"cases": {"flow_re9.4": {"reynolds": 9.4},
+                      "cyl8x16_c30_re9.4": {"reynolds": 9.4, "particles": {"shape": "cylinder", "diameter_mm": 8,
+                                                                            "length_mm": 16, "concentration": 0.3}}},
+            "fidelities": {"base": {"dx_mm": 1.0, "seeds": 3, "run": {}},
+                           "acc": {"dx_mm": 1.0, "seeds": 1, "method": "accurate", "compare_with": "base",
+                                   "cases": ["flow_re9.4", "cyl8x16_c30_re9.4"], "run": {}}}}
+
+
+def test_paired_runs_differ_significantly_only_beyond_both_intervals(tmp_path):
+    # x differs by 0.3 with intervals 0.1 each (combined 0.14): significant; y by 0.1: not
+    _run(tmp_path, "base", "cyl8x16_c30_re9.4/seed1", (1.0, 1.0, 0.5), (0.1, 0.1, 0.05), angle=40.0)
+    _run(tmp_path, "acc", "cyl8x16_c30_re9.4/seed1", (1.3, 1.1, 0.5), (0.1, 0.1, 0.05), angle=40.5, flags=("frozen",))
+    _run(tmp_path, "base", "flow_re9.4", None, None, profile=0.05)
+    _run(tmp_path, "acc", "flow_re9.4", None, None, profile=0.004)
+    runs = methods.run_rows(_config(), "base", "acc", tmp_path)
+    r = runs.set_index(["run", "observable"])
+    assert r.loc[("cyl8x16_c30_re9.4/seed1", "mean_abs_omega_x"), "significant"] == True  # noqa: E712
+    assert r.loc[("cyl8x16_c30_re9.4/seed1", "mean_abs_omega_x"), "rel_diff"] == pytest.approx(0.3)
+    assert r.loc[("cyl8x16_c30_re9.4/seed1", "mean_abs_omega_y"), "significant"] == False  # noqa: E712
+    assert r.loc[("cyl8x16_c30_re9.4/seed1", "mean_angle_deg"), "significant"] == False  # noqa: E712
+    assert r.loc[("cyl8x16_c30_re9.4/seed1", "mean_abs_omega_x"), "accurate_flags"] == "frozen"
+    assert r.loc[("flow_re9.4", "profile_error_rel_l2"), "accurate"] == pytest.approx(0.004)
+    s = methods.summary(runs, methods.claim_rows(tmp_path / "none.csv", tmp_path / "none.csv"))
+    assert s["pairs"] == 2 and s["omega_compared"] == 3 and s["omega_significant"] == 1
+    assert s["flows"] == [{"run": "flow_re9.4", "paper": 0.05, "accurate": 0.004}]
+
+
+def test_an_accurate_run_without_its_paper_method_partner_is_not_compared(tmp_path):
+    _run(tmp_path, "acc", "cyl8x16_c30_re9.4/seed1", (1.3, 1.1, 0.5), (0.1, 0.1, 0.05), angle=40.0)
+    assert len(methods.run_rows(_config(), "base", "acc", tmp_path)) == 0
+
+
+def test_claim_verdicts_side_by_side_mark_the_changed_ones(tmp_path):
+    cols = ["claim", "statement", "statistic", "values", "verdict", "reason"]
+    pd.DataFrame([[1, "a", "", "", "reproduced", ""], [2, "b", "", "", "inconclusive", ""]], columns=cols).to_csv(
+        tmp_path / "p.csv", index=False)
+    pd.DataFrame([[1, "a", "", "", "contradicted", "the opposite ordering"]], columns=cols).to_csv(
+        tmp_path / "a.csv", index=False)
+    c = methods.claim_rows(tmp_path / "p.csv", tmp_path / "a.csv").set_index("claim")
+    assert c.loc[1, "same"] == "no" and c.loc[1, "verdict_accurate"] == "contradicted"
+    assert c.loc[2, "verdict_accurate"] == "not run" and c.loc[2, "same"] == "not compared"
+    assert methods.summary(pd.DataFrame(columns=methods.RUN_COLUMNS), c.reset_index())["claims_changed"] == [1]
+
+
+def test_comparison_writes_its_tables_even_before_any_accurate_run(tmp_path):
+    s = methods.write(_config(), "base", tmp_path, tmp_path / "base" / "method")
+    assert s["accurate_level"] == "acc" and s["accurate_runs_planned"] == 2 and s["pairs"] == 0
+    assert (tmp_path / "base" / "method" / "runs.csv").exists() and (tmp_path / "base" / "method" / "claims.csv").exists()
