@@ -9,6 +9,8 @@ from pathlib import Path
 
 from lbmpipe.reproduction.cases import (CONFIG_SCHEMA, case_scene, config_problems, estimate_minutes, level_cases,
                                        level_runs, level_seeds, packing_id, run_case, split_run, write_case_scene)
+from lbmpipe.reproduction.convergence import levels as convergence_levels
+from lbmpipe.reproduction.convergence import write as write_convergence
 from lbmpipe.reproduction.literate import study_level
 from lbmpipe.reproduction.methods import comparison_level
 from lbmpipe.reproduction.methods import write as write_method_comparison
@@ -77,6 +79,8 @@ def paper_extra_inputs(wildcards):
     extra = [pattern.format(fidelity=level) for pattern in PAPER_EXTRA_INPUTS]
     if comparison_level(config, wildcards.fidelity) is not None:
         extra.append(f"results/{wildcards.fidelity}/method/summary.json")
+    if len(convergence_levels(config, wildcards.fidelity)) > 1:
+        extra.append(f"results/{wildcards.fidelity}/convergence/summary.json")
     return extra
 
 

@@ -528,6 +528,31 @@ def method_comparison_section(fid_dir: Path, fidelity: str, config: dict) -> dic
                                     "significant"]) if runs is not None and len(runs) else None}
 
 
+def convergence_section(fid_dir: Path, fidelity: str, config: dict) -> dict | None:
+    """The paper's observables by dx (``lbmpipe.reproduction.convergence``): the levels with their
+    runs done and planned, the values and the observed orders (``results/<level>/convergence/``);
+    None for a level nothing refines."""
+    from .convergence import levels
+    from .health import read_json
+
+    lvls = levels(config, fidelity)
+    if len(lvls) < 2:
+        return None
+    cdir = Path(fid_dir) / "convergence"
+    summ = read_json(cdir / "summary.json") or {}
+    vals, order = _read_csv(cdir / "values.csv"), _read_csv(cdir / "order.csv")
+    info = []
+    for lv in lvls:
+        runs = _level_runs(config, lv)
+        done = sum(1 for r in runs if (read_json(Path(fid_dir).parent / lv / "cases" / r / "summary.json") or {}).get("status")
+                   == "completed")
+        info.append({"level": lv, "dx": fmt(config["fidelities"][lv]["dx_mm"]), "done": done, "planned": len(runs)})
+    return {"levels": info, "observed": summ.get("observed", 0), "compared": summ.get("compared", 0),
+            "order_table": table_of(order, list(order.columns)) if order is not None and len(order) else None,
+            "value_table": table_of(vals, ["case", "observable", "dx_mm", "value", "ci95", "n_seeds", "wall_s_per_sim_s", "flags"])
+            if vals is not None and len(vals) else None}
+
+
 def _level_runs(config: dict, level: str) -> list[str]:
     from .cases import level_runs
 
@@ -963,6 +988,7 @@ def build_context(repo_root: Path, fid_dir: Path, fidelity: str, config: dict, o
         "health": health_ctx,
         "runtime": runtime_section(fid_dir, fidelity),
         "method": method_comparison_section(fid_dir, fidelity, config),
+        "convergence": convergence_section(fid_dir, fidelity, config),
         "missing": lambda rel: f"not built at this level: `{_rel_to(fid_dir, repo_root)}/{rel}` missing",
     }
 

@@ -48,6 +48,33 @@ rule method_comparison:
         write_method_comparison(config, wildcards.fidelity, Path("results"), Path(output.summary).parent)
 
 
+def _convergence_inputs(wildcards):
+    # the records of the cases the refining levels share with this one, where present
+    files = []
+    for lvl in convergence_levels(config, wildcards.fidelity):
+        for case in level_cases(config, lvl):
+            files += [ancient(f) for f in (f"results/{lvl}/cases/{case}/stats.json", f"results/{lvl}/cases/{case}/profile.csv")
+                      if Path(f).exists()]
+    return files
+
+
+rule convergence:
+    """The paper's observables by dx (levels with `convergence_of` this level): values with their
+    intervals, the changes between spacings and the observed order where the noise lets it show
+    (results/<level>/convergence/)."""
+    localrule: True
+    input:
+        _convergence_inputs,
+    output:
+        values="results/{fidelity}/convergence/values.csv",
+        order="results/{fidelity}/convergence/order.csv",
+        summary="results/{fidelity}/convergence/summary.json",
+    log:
+        "results/{fidelity}/logs/convergence.log",
+    run:
+        write_convergence(config, wildcards.fidelity, Path("results"), Path(output.summary).parent)
+
+
 rule paper:
     """The reproduction: equations linked to the code, parameters, figures beside the paper's
     captions, claims, stability, accuracy against cost, run cost against the paper's."""

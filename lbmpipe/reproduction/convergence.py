@@ -1,0 +1,155 @@
+"""The paper's observables as the lattice is refined: mean |Omega| per axis, the mean orientation
+angle and the velocity profile's distance from Poiseuille, by dx, with intervals, and the order
+they converge at where the statistics' noise lets it show.
+
+Levels with ``convergence_of: <level>`` run some of that level's cases at another dx (tau fixed:
+dt proportional to dx^2). For each case and observable the value at each dx comes from the case's
+record (``cases/<case>/stats.json``, the seeds combined where a level has several; the profile from
+``profile.csv``), with its 95 % half-width. Between successive spacings h > h/2 > h/4 the changes
+``d1 = f(h) - f(h/2)`` and ``d2 = f(h/2) - f(h/4)`` carry the two values' intervals combined
+(``sqrt(ci_a^2 + ci_b^2)``). The observed order ``p = log2(|d1| / |d2|)`` is given only when both
+changes exceed their intervals and share a sign (monotone convergence); otherwise the status says
+which change the noise hides. The cost beside each value is the level's measured wall seconds
+per simulated second of that case (``tables/runtime.csv``, summed over its seeds' runs).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from .cases import level_cases
+from .methods import ANGLE_KEY
+
+ROW_COLUMNS = ["case", "observable", "level", "dx_mm", "value", "ci95", "n_seeds", "wall_s_per_sim_s", "flags"]
+ORDER_COLUMNS = ["case", "observable", "dx_mm", "d1", "d1_ci95", "d2", "d2_ci95", "order", "status"]
+
+
+def levels(config: dict, base: str) -> list[str]:
+    """``base`` and the levels that refine or coarsen it, coarsest first."""
+    fids = config["fidelities"]
+    names = [base] + [n for n, f in fids.items() if f.get("convergence_of") == base]
+    return sorted(names, key=lambda n: -float(fids[n]["dx_mm"]))
+
+
+def profile_distance(profile_csv: Path) -> float:
+    """Relative L2 distance of the averaged axial velocity from Poiseuille over the cross-section
+    (``profile.csv``: each radius weighted by its node count); NaN if absent."""
+    try:
+        p = pd.read_csv(profile_csv)
+    except (OSError, ValueError, pd.errors.EmptyDataError):
+        return float("nan")
+    if not len(p):
+        return float("nan")
+    w = p["nodes"].astype(float)
+    ref = p["uz_poiseuille_m_s"].astype(float)
+    return float(np.sqrt((w * (p["uz_m_s"] - ref) ** 2).sum() / (w * ref**2).sum()))
+
+
+def _read(path: Path) -> dict:
+    try:
+        return json.loads(Path(path).read_text())
+    except (OSError, ValueError):
+        return {}
+
+
+def case_values(case_dir: Path) -> dict[str, tuple[float, float]]:
+    """(value, 95 % half-width) of each observable of one case's record; empty if not run."""
+    if (_read(Path(case_dir) / "summary.json").get("status")) != "completed":
+        return {}
+    out = {"profile_distance": (profile_distance(Path(case_dir) / "profile.csv"), float("nan"))}
+    stats = _read(Path(case_dir) / "stats.json")
+    mean, ci = stats.get("mean_abs_omega_rad_s") or {}, stats.get("ci95_rad_s") or {}
+    for ax in "xyz":
+        if ax in mean:
+            out[f"mean_abs_omega_{ax}"] = (float(mean[ax]), float(ci.get(ax) if ci.get(ax) is not None else np.nan))
+    angle = (stats.get("orientation") or {}).get(ANGLE_KEY.get(stats.get("shape"), ""), {})
+    if angle.get("mean_deg") is not None:
+        c = angle.get("ci95_deg")
+        out["mean_angle_deg"] = (float(angle["mean_deg"]), float(c) if c is not None else float("nan"))
+    return out
+
+
+def _cost(level_dir: Path, case: str) -> float:
+    """Wall seconds per simulated second of a case at a level, its seeds' runs summed."""
+    try:
+        rt = pd.read_csv(Path(level_dir) / "tables" / "runtime.csv")
+    except (OSError, ValueError, pd.errors.EmptyDataError):
+        return float("nan")
+    rows = rt[(rt["case"] == case) | rt["case"].astype(str).str.startswith(f"{case}/seed")]
+    rows = rows[rows["status"] == "completed"]
+    if not len(rows):
+        return float("nan")
+    return float(rows["wall_s"].astype(float).sum() / rows["simulated_s"].astype(float).mean())
+
+
+def value_rows(config: dict, base: str, root: Path = Path("results")) -> pd.DataFrame:
+    """One row per case, observable and level of the convergence levels of ``base`` (the cases
+    every refining level runs), where the case's record exists."""
+    lvls = levels(config, base)
+    shared = sorted(set.intersection(*[set(level_cases(config, lv)) for lv in lvls])) if len(lvls) > 1 else []
+    rows = []
+    for case in shared:
+        for lv in lvls:
+            d = Path(root) / lv / "cases" / case
+            stats = _read(d / "stats.json")
+            for obs, (v, c) in case_values(d).items():
+                rows.append({"case": case, "observable": obs, "level": lv,
+                             "dx_mm": float(config["fidelities"][lv]["dx_mm"]), "value": v, "ci95": c,
+                             "n_seeds": int(stats.get("n_seeds", 1)) if stats else 1,
+                             "wall_s_per_sim_s": _cost(Path(root) / lv, case),
+                             "flags": ";".join(stats.get("flags") or [])})
+    return pd.DataFrame(rows, columns=ROW_COLUMNS)
+
+
+def order_rows(values: pd.DataFrame) -> pd.DataFrame:
+    """Per case and observable with three spacings halving in turn: the two changes with their
+    intervals and the observed order, or the reason it is not given."""
+    rows = []
+    for (case, obs), g in values.groupby(["case", "observable"], sort=True):
+        g = g.sort_values("dx_mm", ascending=False)
+        dx = g["dx_mm"].to_numpy(float)
+        if len(g) < 3:
+            rows.append({"case": case, "observable": obs, "dx_mm": " ".join(f"{x:g}" for x in dx),
+                         "status": f"{len(g)} of 3 spacings run"})
+            continue
+        f, c = g["value"].to_numpy(float)[:3], g["ci95"].to_numpy(float)[:3]
+        c = np.where(np.isfinite(c), c, 0.0)  # a value without an interval (the profile) adds none
+        d1, d2 = f[0] - f[1], f[1] - f[2]
+        e1, e2 = math.hypot(c[0], c[1]), math.hypot(c[1], c[2])
+        row = {"case": case, "observable": obs, "dx_mm": " ".join(f"{x:g}" for x in dx[:3]),
+               "d1": d1, "d1_ci95": e1, "d2": d2, "d2_ci95": e2, "order": float("nan")}
+        if not np.allclose([dx[0] / dx[1], dx[1] / dx[2]], 2.0):
+            row["status"] = "spacings do not halve"
+        elif abs(d2) <= e2:
+            row["status"] = f"noise hides the order: the finer change {abs(d2):.3g} is within its interval {e2:.3g}"
+        elif abs(d1) <= e1:
+            row["status"] = f"noise hides the order: the coarser change {abs(d1):.3g} is within its interval {e1:.3g}"
+        elif np.sign(d1) != np.sign(d2):
+            row["status"] = "not monotone: the two changes differ in sign"
+        else:
+            row["order"] = math.log2(abs(d1) / abs(d2))
+            row["status"] = "observed"
+        rows.append(row)
+    return pd.DataFrame(rows, columns=ORDER_COLUMNS)
+
+
+def write(config: dict, base: str, root: Path, out_dir: Path) -> dict:
+    """Write ``values.csv``, ``order.csv`` and ``summary.json`` of ``base``'s convergence levels."""
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    vals = value_rows(config, base, root)
+    order = order_rows(vals) if len(vals) else pd.DataFrame(columns=ORDER_COLUMNS)
+    vals.to_csv(out_dir / "values.csv", index=False, float_format="%.6g")
+    order.to_csv(out_dir / "order.csv", index=False, float_format="%.4g")
+    lvls = levels(config, base)
+    s = {"base": base, "levels": {lv: float(config["fidelities"][lv]["dx_mm"]) for lv in lvls},
+         "cases": sorted(vals["case"].unique().tolist()) if len(vals) else [],
+         "observed": int((order["status"] == "observed").sum()) if len(order) else 0,
+         "compared": int(len(order))}
+    (out_dir / "summary.json").write_text(json.dumps(s, indent=2) + "\n")
+    return s

@@ -1,0 +1,78 @@
+"""The paper's observables by dx: values with intervals, the observed order only where both changes
+between halving spacings stand out of the noise."""
+
+import json
+import math
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from lbmpipe.reproduction import convergence
+
+
+def _config():
+    case = {"reynolds": 9.4, "particles": {"shape": "cylinder", "diameter_mm": 16, "length_mm": 16, "concentration": 0.3}}
+    return {"cases": {"flow_re9.4": {"reynolds": 9.4}, "cyl16x16_c30_re9.4": case, "cube8_c30_re9.4": case},
+            "fidelities": {"base": {"dx_mm": 1.0, "run": {}},
+                           "coarse": {"dx_mm": 2.0, "convergence_of": "base", "cases": ["flow_re9.4", "cyl16x16_c30_re9.4"],
+                                      "run": {}},
+                           "fine": {"dx_mm": 0.5, "convergence_of": "base", "cases": ["flow_re9.4", "cyl16x16_c30_re9.4"],
+                                    "run": {}}}}
+
+
+def _case(root, level, case, omega, ci, profile_scale):
+    d = root / level / "cases" / case
+    d.mkdir(parents=True)
+    (d / "summary.json").write_text(json.dumps({"status": "completed"}))
+    r = np.linspace(0.5, 24.5, 25)
+    ref = 1.0 - (r / 25.0) ** 2
+    pd.DataFrame({"r_mm": r, "uz_m_s": ref * (1 - profile_scale), "uz_poiseuille_m_s": ref, "nodes": 4 * r}).to_csv(
+        d / "profile.csv", index=False)
+    if omega is not None:
+        (d / "stats.json").write_text(json.dumps({"shape": "cylinder", "n_seeds": 3, "flags": [],
+                                                  "mean_abs_omega_rad_s": {"x": omega, "y": omega, "z": omega / 2},
+                                                  "ci95_rad_s": {"x": ci, "y": 10 * ci, "z": ci}}))
+
+
+def test_levels_run_from_the_coarsest_to_the_finest_spacing():
+    assert convergence.levels(_config(), "base") == ["coarse", "base", "fine"]
+    assert convergence.levels(_config(), "fine") == ["fine"]
+
+
+def test_profile_distance_is_the_relative_l2_gap_from_poiseuille(tmp_path):
+    _case(tmp_path, "base", "flow_re9.4", None, None, profile_scale=0.03)
+    assert convergence.profile_distance(tmp_path / "base" / "cases" / "flow_re9.4" / "profile.csv") == pytest.approx(0.03)
+    assert math.isnan(convergence.profile_distance(tmp_path / "nothing.csv"))
+
+
+def test_second_order_convergence_is_observed_when_both_changes_exceed_the_noise(tmp_path):
+    # omega_x = 1 + 0.1 h^2 with tight intervals: changes 0.3 and 0.075 -> order log2(4) = 2;
+    # omega_y has ten times wider intervals (0.5): the finer change drowns; the profile error
+    # 0.04 h^2 converges at order 2 and carries no interval
+    for level, h in (("coarse", 2.0), ("base", 1.0), ("fine", 0.5)):
+        _case(tmp_path, level, "cyl16x16_c30_re9.4", 1.0 + 0.1 * h * h, 0.02, profile_scale=0.04 * h * h)
+    vals = convergence.value_rows(_config(), "base", tmp_path)
+    order = convergence.order_rows(vals).set_index("observable")
+    assert order.loc["mean_abs_omega_x", "order"] == pytest.approx(2.0)
+    assert order.loc["mean_abs_omega_x", "status"] == "observed"
+    assert order.loc["profile_distance", "order"] == pytest.approx(2.0)
+    assert math.isnan(order.loc["mean_abs_omega_y", "order"])
+    assert order.loc["mean_abs_omega_y", "status"].startswith("noise hides the order: the finer change")
+    assert set(vals["level"]) == {"coarse", "base", "fine"} and (vals["n_seeds"] == 3).all()
+
+
+def test_changes_of_opposite_sign_give_no_order(tmp_path):
+    for level, v in (("coarse", 1.3), ("base", 1.0), ("fine", 1.2)):
+        _case(tmp_path, level, "cyl16x16_c30_re9.4", v, 0.01, profile_scale=0.01)
+    order = convergence.order_rows(convergence.value_rows(_config(), "base", tmp_path)).set_index("observable")
+    assert order.loc["mean_abs_omega_x", "status"] == "not monotone: the two changes differ in sign"
+
+
+def test_a_case_missing_at_a_spacing_says_how_many_were_run(tmp_path):
+    _case(tmp_path, "base", "flow_re9.4", None, None, profile_scale=0.01)
+    _case(tmp_path, "coarse", "flow_re9.4", None, None, profile_scale=0.04)
+    s = convergence.write(_config(), "base", tmp_path, tmp_path / "base" / "convergence")
+    order = pd.read_csv(tmp_path / "base" / "convergence" / "order.csv")
+    assert order["status"].tolist() == ["2 of 3 spacings run"] and s["observed"] == 0
+    assert s["levels"] == {"coarse": 2.0, "base": 1.0, "fine": 0.5}
