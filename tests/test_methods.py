@@ -87,7 +87,7 @@ def test_paired_runs_differ_significantly_only_beyond_both_intervals(tmp_path):
     assert r.loc[("cyl8x16_c30_re9.4/seed1", "mean_angle_deg"), "significant"] == False  # noqa: E712
     assert r.loc[("cyl8x16_c30_re9.4/seed1", "mean_abs_omega_x"), "accurate_flags"] == "frozen"
     assert r.loc[("flow_re9.4", "profile_error_rel_l2"), "accurate"] == pytest.approx(0.004)
-    s = methods.summary(runs, methods.claim_rows(tmp_path / "none.csv", tmp_path / "none.csv"))
+    s = methods.summary(runs, pd.DataFrame(columns=methods.CLAIM_COLUMNS))
     assert s["pairs"] == 2 and s["omega_compared"] == 3 and s["omega_significant"] == 1
     assert s["flows"] == [{"run": "flow_re9.4", "paper": 0.05, "accurate": 0.004}]
 
@@ -97,19 +97,35 @@ def test_an_accurate_run_without_its_paper_method_partner_is_not_compared(tmp_pa
     assert len(methods.run_rows(_config(), "base", "acc", tmp_path)) == 0
 
 
-def test_claim_verdicts_side_by_side_mark_the_changed_ones(tmp_path):
+def test_claim_verdicts_side_by_side_mark_the_changed_ones():
     cols = ["claim", "statement", "statistic", "values", "verdict", "reason"]
-    pd.DataFrame([[1, "a", "", "", "reproduced", ""], [2, "b", "", "", "inconclusive", ""]], columns=cols).to_csv(
-        tmp_path / "p.csv", index=False)
-    pd.DataFrame([[1, "a", "", "", "contradicted", "the opposite ordering"]], columns=cols).to_csv(
-        tmp_path / "a.csv", index=False)
-    c = methods.claim_rows(tmp_path / "p.csv", tmp_path / "a.csv").set_index("claim")
-    assert c.loc[1, "same"] == "no" and c.loc[1, "verdict_accurate"] == "contradicted"
-    assert c.loc[2, "verdict_accurate"] == "not run" and c.loc[2, "same"] == "not compared"
+    level = pd.DataFrame([[1, "a", "", "", "reproduced", ""], [2, "b", "", "", "reproduced", ""]], columns=cols)
+    paper = pd.DataFrame([[1, "a", "", "", "reproduced", "interval excludes 0"],
+                          [2, "b", "", "", "inconclusive", "inputs missing: x: not run"]], columns=cols)
+    acc = pd.DataFrame([[1, "a", "", "", "contradicted", "the opposite ordering"],
+                        [2, "b", "", "", "inconclusive", "inputs missing: x: not run"]], columns=cols)
+    c = methods.claim_rows(level, paper, acc).set_index("claim")
+    assert c.loc[1, "same"] == "no" and c.loc[1, "verdict_accurate_seed1"] == "contradicted"
+    assert c.loc[2, "same"] == "not compared" and c.loc[2, "verdict"] == "reproduced"
     assert methods.summary(pd.DataFrame(columns=methods.RUN_COLUMNS), c.reset_index())["claims_changed"] == [1]
 
 
+def test_claims_from_seed_one_of_the_same_cases_under_each_method(tmp_path):
+    # the paper method's level has three packings: its seed-1 view holds seed 1's record only
+    cfg = _config()
+    _run(tmp_path, "base", "cyl8x16_c30_re9.4/seed1", (1.0, 1.0, 0.5), (0.1, 0.1, 0.05), angle=40.0)
+    _run(tmp_path, "base", "cyl8x16_c30_re9.4/seed2", (9.0, 9.0, 9.0), (0.1, 0.1, 0.05), angle=40.0)
+    claims = methods.seed1_claims(cfg, "base", ["cyl8x16_c30_re9.4"], tmp_path, tmp_path / "work")
+    assert sorted(claims["claim"]) == list(range(1, 15))
+    av = pd.read_csv(tmp_path / "work" / "base" / "tables" / "angular_velocity.csv").set_index("case")
+    assert av.loc["cyl8x16_c30_re9.4", "omega_x"] == pytest.approx(1.0)
+
+
 def test_comparison_writes_its_tables_even_before_any_accurate_run(tmp_path):
+    cols = ["claim", "statement", "statistic", "values", "verdict", "reason"]
+    (tmp_path / "base").mkdir()
+    pd.DataFrame([[k, "s", "", "", "inconclusive", "inputs missing"] for k in range(1, 15)], columns=cols).to_csv(
+        tmp_path / "base" / "claims.csv", index=False)
     s = methods.write(_config(), "base", tmp_path, tmp_path / "base" / "method")
     assert s["accurate_level"] == "acc" and s["accurate_runs_planned"] == 2 and s["pairs"] == 0
     assert (tmp_path / "base" / "method" / "runs.csv").exists() and (tmp_path / "base" / "method" / "claims.csv").exists()

@@ -522,7 +522,8 @@ def method_comparison_section(fid_dir: Path, fidelity: str, config: dict) -> dic
             "angle_compared": summ.get("angle_compared", 0), "angle_significant": summ.get("angle_significant", 0),
             "flows": flows, "claims_compared": summ.get("claims_compared", 0),
             "claims_changed": ", ".join(str(c) for c in summ.get("claims_changed", [])) or "none",
-            "claims": table_of(claims[claims["same"] != "not compared"], ["claim", "verdict_paper", "verdict_accurate", "same"])
+            "claims": table_of(claims[claims["same"] != "not compared"], ["claim", "verdict", "verdict_paper_seed1",
+                                                                            "verdict_accurate_seed1", "same"])
             if claims is not None and len(claims) and (claims["same"] != "not compared").any() else None,
             "runs": table_of(runs, ["run", "observable", "paper", "paper_ci95", "accurate", "accurate_ci95", "rel_diff",
                                     "significant"]) if runs is not None and len(runs) else None}

@@ -10,8 +10,9 @@ observable: both values with their 95 % intervals, the difference relative to th
 value, and whether it exceeds the two intervals combined (independent runs: sqrt(ci_a^2 + ci_p^2)).
 Observables: mean |Omega| about x, y, z (Figs. 4-7), the mean orientation angle (Figs. 8-9), and
 the flow profile's relative L2 distance from Poiseuille (Fig. 10; for the particle-free flows this is
-the wall treatment's own error). Per claim: the verdict of each level's ``claims.csv`` side by
-side (the accurate level's verdicts rest on its one packing per case).
+the wall treatment's own error). Per claim: the verdicts side by side, each evaluated from packing
+seed 1 of the accurate level's cases under both methods, beside the level's own verdict from all
+its packings and cases.
 """
 
 from __future__ import annotations
@@ -28,7 +29,8 @@ from .cases import level_runs
 ANGLE_KEY = {"cylinder": "cyl_axis_angle", "cube": "cube_projected_angle"}
 RUN_COLUMNS = ["run", "observable", "paper", "paper_ci95", "accurate", "accurate_ci95", "rel_diff", "rel_diff_ci95",
                "significant", "paper_flags", "accurate_flags"]
-CLAIM_COLUMNS = ["claim", "statement", "verdict_paper", "verdict_accurate", "same", "reason_accurate"]
+CLAIM_COLUMNS = ["claim", "statement", "verdict", "verdict_paper_seed1", "verdict_accurate_seed1", "same",
+                 "reason_accurate"]
 
 
 def comparison_level(config: dict, level: str) -> str | None:
@@ -99,19 +101,49 @@ def run_rows(config: dict, paper_level: str, accurate_level: str, root: Path = P
     return pd.DataFrame(rows, columns=RUN_COLUMNS)
 
 
-def claim_rows(paper_claims: Path, accurate_claims: Path) -> pd.DataFrame:
-    """Each claim's verdict under both methods (``claims.csv`` of each level); ``same`` is
-    ``yes``/``no``, or ``not compared`` where the accurate level has no claims file."""
-    p = pd.read_csv(paper_claims) if Path(paper_claims).exists() else pd.DataFrame(columns=["claim", "statement", "verdict"])
-    a = pd.read_csv(accurate_claims) if Path(accurate_claims).exists() else None
+def seed1_claims(config: dict, level: str, cases: list[str], root: Path, work: Path) -> pd.DataFrame:
+    """The claims of ``level`` evaluated from packing seed 1 of ``cases`` alone (the other cases
+    count as not run): the accurate level runs seed 1 of a subset, so its verdicts are set beside
+    the paper method's on the same packings and cases, not beside the level's three packings."""
+    import shutil
+
+    from .claims import evaluate_claims
+    from .statistics import aggregate
+
+    fid = config["fidelities"][level]
+    view = Path(work) / level
+    for case in cases:
+        seeded = config["cases"][case].get("particles") is not None and "seeds" in fid
+        src = Path(root) / level / "cases" / (f"{case}/seed1" if seeded else case)
+        if (_read(src / "summary.json") or {}).get("status") is None:
+            continue
+        dst = view / "cases" / case
+        dst.mkdir(parents=True, exist_ok=True)
+        for name in SEED1_FILES:
+            if (src / name).exists():
+                shutil.copy2(src / name, dst / name)
+    aggregate(view, config["cases"])
+    return evaluate_claims(view, config["cases"])
+
+
+#: the files of a run the claims read (its record, orientation histograms, profile, health inputs)
+SEED1_FILES = ("summary.json", "stats.json", "orientation.csv", "profile.csv", "flow_rate.csv", "particles_static.csv")
+
+
+def claim_rows(level_claims: pd.DataFrame, paper_seed1: pd.DataFrame, accurate_seed1: pd.DataFrame) -> pd.DataFrame:
+    """Each claim's verdict at the level (all packings, all cases) and under both methods from
+    the same packing and cases; ``same`` is ``yes``/``no``, or ``not compared`` where either
+    method lacks the claim's inputs."""
     rows = []
-    for _, r in p.iterrows():
-        ra = None if a is None else a[a["claim"] == r["claim"]]
-        va = None if ra is None or not len(ra) else str(ra["verdict"].iloc[0])
-        rows.append({"claim": int(r["claim"]), "statement": r["statement"], "verdict_paper": r["verdict"],
-                     "verdict_accurate": va or "not run",
-                     "same": "not compared" if va is None else ("yes" if va == r["verdict"] else "no"),
-                     "reason_accurate": "" if ra is None or not len(ra) else str(ra["reason"].iloc[0])})
+    for _, r in level_claims.iterrows():
+        k = int(r["claim"])
+        p = paper_seed1[paper_seed1["claim"] == k].iloc[0]
+        a = accurate_seed1[accurate_seed1["claim"] == k].iloc[0]
+        missing = any(str(x["reason"]).startswith("inputs missing") for x in (p, a))
+        rows.append({"claim": k, "statement": r["statement"], "verdict": r["verdict"],
+                     "verdict_paper_seed1": p["verdict"], "verdict_accurate_seed1": a["verdict"],
+                     "same": "not compared" if missing else ("yes" if p["verdict"] == a["verdict"] else "no"),
+                     "reason_accurate": str(a["reason"])})
     return pd.DataFrame(rows, columns=CLAIM_COLUMNS)
 
 
@@ -142,12 +174,20 @@ def write(config: dict, paper_level: str, root: Path, out_dir: Path) -> dict:
     config has no such level or none of its runs is done)."""
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
+    import tempfile
+
+    from .cases import level_cases
+
     acc = comparison_level(config, paper_level)
     runs = run_rows(config, paper_level, acc, root) if acc else pd.DataFrame(columns=RUN_COLUMNS)
-    claims = claim_rows(Path(root) / paper_level / "claims.csv",
-                        Path(root) / acc / "claims.csv" if acc else Path("/nonexistent"))
-    if not len(runs):  # no accurate run is done: no verdict of that level rests on a run
-        claims["verdict_accurate"], claims["same"], claims["reason_accurate"] = "not run", "not compared", ""
+    level_claims = pd.read_csv(Path(root) / paper_level / "claims.csv")
+    if acc:
+        with tempfile.TemporaryDirectory() as work:
+            subset = level_cases(config, acc)
+            claims = claim_rows(level_claims, seed1_claims(config, paper_level, subset, root, work),
+                                seed1_claims(config, acc, subset, root, work))
+    else:
+        claims = pd.DataFrame(columns=CLAIM_COLUMNS)
     runs.to_csv(out_dir / "runs.csv", index=False, float_format="%.6g")
     claims.to_csv(out_dir / "claims.csv", index=False)
     s = {"paper_level": paper_level, "accurate_level": acc,
