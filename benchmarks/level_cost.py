@@ -51,6 +51,10 @@ def main(argv=None) -> int:
     runs = level_runs(config, level)
     model, val = runcost.build(level_dir, runs, level)
     done = dict(zip(val["run"], val["wall_s"]))
+    if model["n_runs"] < 2:  # too few runs of its own: the default level's model (same host)
+        base = config["fidelity"]
+        model, _ = runcost.build(Path(args.results) / base, level_runs(config, base), base)
+        print(f"(level {level} has {len(done)} runs: predicting with level {base}'s cost model)")
 
     rows, unpackable = [], []
     for r in runs:

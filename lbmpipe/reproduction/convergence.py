@@ -23,6 +23,7 @@ import numpy as np
 import pandas as pd
 
 from .cases import level_cases
+from .health import read_json
 from .methods import ANGLE_KEY
 
 ROW_COLUMNS = ["case", "observable", "level", "dx_mm", "value", "ci95", "n_seeds", "wall_s_per_sim_s", "flags"]
@@ -50,19 +51,12 @@ def profile_distance(profile_csv: Path) -> float:
     return float(np.sqrt((w * (p["uz_m_s"] - ref) ** 2).sum() / (w * ref**2).sum()))
 
 
-def _read(path: Path) -> dict:
-    try:
-        return json.loads(Path(path).read_text())
-    except (OSError, ValueError):
-        return {}
-
-
 def case_values(case_dir: Path) -> dict[str, tuple[float, float]]:
     """(value, 95 % half-width) of each observable of one case's record; empty if not run."""
-    if (_read(Path(case_dir) / "summary.json").get("status")) != "completed":
+    if ((read_json(Path(case_dir) / "summary.json") or {}).get("status")) != "completed":
         return {}
     out = {"profile_distance": (profile_distance(Path(case_dir) / "profile.csv"), float("nan"))}
-    stats = _read(Path(case_dir) / "stats.json")
+    stats = read_json(Path(case_dir) / "stats.json") or {}
     mean, ci = stats.get("mean_abs_omega_rad_s") or {}, stats.get("ci95_rad_s") or {}
     for ax in "xyz":
         if ax in mean:
@@ -96,7 +90,7 @@ def value_rows(config: dict, base: str, root: Path = Path("results")) -> pd.Data
     for case in shared:
         for lv in lvls:
             d = Path(root) / lv / "cases" / case
-            stats = _read(d / "stats.json")
+            stats = read_json(d / "stats.json") or {}
             for obs, (v, c) in case_values(d).items():
                 rows.append({"case": case, "observable": obs, "level": lv,
                              "dx_mm": float(config["fidelities"][lv]["dx_mm"]), "value": v, "ci95": c,

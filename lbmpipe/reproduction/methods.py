@@ -24,6 +24,8 @@ from pathlib import Path
 import pandas as pd
 
 from .cases import level_runs
+from .health import _num as _f
+from .health import read_json as _read
 
 #: the orientation angle of each shape that Figs. 8-9 show (stats.json ``orientation``)
 ANGLE_KEY = {"cylinder": "cyl_axis_angle", "cube": "cube_projected_angle"}
@@ -39,21 +41,6 @@ def comparison_level(config: dict, level: str) -> str | None:
         if fid.get("compare_with") == level:
             return name
     return None
-
-
-def _read(path: Path) -> dict | None:
-    try:
-        return json.loads(Path(path).read_text())
-    except (OSError, ValueError):
-        return None
-
-
-def _f(v) -> float:
-    try:
-        x = float(v)
-    except (TypeError, ValueError):
-        return float("nan")
-    return x
 
 
 def observables(run_dir: Path) -> dict[str, tuple[float, float]] | None:
