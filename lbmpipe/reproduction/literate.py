@@ -471,7 +471,7 @@ def runtime_section(fid_dir: Path, fidelity: str) -> dict:
                         "us_particle": fmt(1e6 * model.get("s_per_particle_step", 0.0)),
                         "ms_step": fmt(1e3 * model.get("s_per_step", 0.0)), "intercept_s": fmt(model.get("intercept_s")),
                         "table": table_of(val, ["run", "family", "steps", "particles", "links", "wall_s", "predicted_s",
-                                                "rel_error"]) if val is not None and len(val) else None}
+                                                "rel_error", "cpu_share"]) if val is not None and len(val) else None}
     if df is not None:
         d = df.copy()
         if "wall_s" in d:

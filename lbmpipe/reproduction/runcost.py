@@ -20,7 +20,9 @@ the fitted runs of the group's seconds over its work (a ratio: long and short ru
 The measured wall time of a run is its Snakemake benchmark's wall seconds, or, for a run resumed
 from a checkpoint (the benchmark saw only its last part), the loop's accumulated seconds plus
 set-up. The production runs are single-threaded; dividing by ``threads`` assumes ideal scaling
-and is not validated here (``benchmarks/fluid.py`` measures the thread scaling).
+and is not validated here (``benchmarks/fluid.py`` measures the thread scaling). The model
+predicts wall time under the conditions its runs had: ``cpu_share`` (CPU over wall seconds of
+each run's benchmark) records how much of a core a run got beside the others on the host.
 
 Validation is leave-one-family-out: a family is a case with its Reynolds numbers and seeds
 (``cyl8x16_c30`` holds ``cyl8x16_c30_re9.4/seed1`` ... ``cyl8x16_c30_re26/seed3``), so a run is
@@ -44,7 +46,7 @@ GROUPS = {"fluid": ("stream+collide", "wall", "flow-rate"), "particles": ("parti
 WORK = {"fluid": ("nodes", "s_per_node_update"), "particles": ("links", "s_per_link_update"),
         "collisions": ("particles", "s_per_particle_step")}
 COLUMNS = ["run", "family", "steps", "threads", "nodes", "links", "particles", "wall_s", "loop_s", "fluid_s",
-           "particles_s", "collisions_s", "rest_s", "overhead_s", "resumed"]
+           "particles_s", "collisions_s", "rest_s", "overhead_s", "resumed", "cpu_share"]
 
 
 def family(run: str) -> str:
@@ -71,15 +73,17 @@ def run_row(run: str, summary: dict, bench_s: float = float("nan")) -> dict | No
             "links": int(part.get("links") or 0), "particles": int(part.get("count") or 0),
             "wall_s": wall, "loop_s": loop, **{f"{g}_s": v for g, v in groups.items()},
             "rest_s": max(loop - sum(groups.values()), 0.0), "overhead_s": max(wall - loop, 0.0),
-            "resumed": bool(resumed)}
+            "resumed": bool(resumed), "cpu_share": float("nan")}
 
 
-def _bench_seconds(path: Path) -> float:
+def _bench(path: Path) -> tuple[float, float]:
+    """(wall seconds, CPU seconds) of a Snakemake benchmark file; NaN where absent."""
     try:
         df = pd.read_csv(path, sep="\t")
-        return float(pd.to_numeric(df["s"], errors="coerce").mean())
-    except (OSError, KeyError, ValueError, pd.errors.EmptyDataError):
-        return float("nan")
+    except (OSError, ValueError, pd.errors.EmptyDataError):
+        return float("nan"), float("nan")
+    return tuple(float(pd.to_numeric(df[k], errors="coerce").mean()) if k in df else float("nan")
+                 for k in ("s", "cpu_time"))
 
 
 def level_rows(level_dir: Path, runs: list[str]) -> pd.DataFrame:
@@ -92,8 +96,12 @@ def level_rows(level_dir: Path, runs: list[str]) -> pd.DataFrame:
             summary = json.loads(path.read_text())
         except (OSError, ValueError):
             continue
-        row = run_row(run, summary, _bench_seconds(Path(level_dir) / "benchmarks" / f"{run}.simulate.tsv"))
+        wall, cpu = _bench(Path(level_dir) / "benchmarks" / f"{run}.simulate.tsv")
+        row = run_row(run, summary, wall)
         if row is not None:
+            # the share of a core the run got (other runs and jobs on the host take the rest): what
+            # the wall time depends on beyond the work
+            row["cpu_share"] = cpu / wall if not row["resumed"] and wall > 0 else float("nan")
             rows.append(row)
     return pd.DataFrame(rows, columns=COLUMNS)
 
@@ -162,6 +170,7 @@ def build(level_dir: Path, runs: list[str], level: str) -> tuple[dict, pd.DataFr
         "median_abs_rel_error": float(err.median()) if len(err) else float("nan"),
         "max_abs_rel_error": float(err.max()) if len(err) else float("nan"),
         "threads_measured": sorted(int(t) for t in rows["threads"].unique()) if len(rows) else [],
+        "median_cpu_share": float(rows["cpu_share"].median()) if len(rows) else float("nan"),
         "links_per_area_lu": links_per_area_lu(level_dir, rows),
     })
     return model, val
