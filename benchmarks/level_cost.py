@@ -66,10 +66,12 @@ def main(argv=None) -> int:
         if r in done:
             rows.append((r, params.n_steps, float(done[r]), "measured"))
         else:
-            rows.append((r, params.n_steps, runcost.predict_scene(model, sc, params), "cost model"))
+            share = model.get("median_cpu_share", 1.0)  # under the conditions of the runs measured here
+            rows.append((r, params.n_steps, runcost.predict_scene(model, sc, params, share), "cost model"))
 
     print(f"level {level}: {len(runs)} runs, {len(done)} done here; cost model fitted to {model['n_runs']} runs, "
-          f"median error {100 * model['median_abs_rel_error']:.1f} % (largest {100 * model['max_abs_rel_error']:.1f} %) "
+          f"median error {100 * model['median_abs_rel_error_median_share']:.1f} % at the median share of a core "
+          f"{model['median_cpu_share']:.2f} ({100 * model['median_abs_rel_error']:.1f} % given each run's share) "
           f"over {model['n_validated']} runs predicted with their family held out")
     print(f"{'run':40s} {'steps':>8s} {'s/step':>8s} {'minutes':>8s}  source")
     for r, n, wall, src in rows:

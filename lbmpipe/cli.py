@@ -136,10 +136,12 @@ def _predicted_text(scene: Scene, params: LatticeParams, model: dict, path: str)
     if "s_per_step" in model:  # wall-time model of a level's production runs
         from .reproduction.runcost import predict_scene
 
-        err = model.get("median_abs_rel_error", float("nan"))
-        text = (f"{_duration(predict_scene(model, scene, params))} wall  (median error {100 * err:.0f} % on "
-                f"{model.get('n_validated', 0)} production runs held out of the fit, one run per core on the host "
-                f"that ran them: {path})")
+        err, err_med = model.get("median_abs_rel_error", float("nan")), model.get("median_abs_rel_error_median_share", float("nan"))
+        share = float(model.get("median_cpu_share", 1.0))
+        text = (f"{_duration(predict_scene(model, scene, params))} wall with a core per thread of its own, "
+                f"{_duration(predict_scene(model, scene, params, share))} with the {share:.2f} of a core the production "
+                f"runs got  (median error {100 * err:.0f} % given a run's share, {100 * err_med:.0f} % at the median share, "
+                f"on {model.get('n_validated', 0)} production runs held out of the fit, on the host that ran them: {path})")
         if (scene.run.threads or 1) not in model.get("threads_measured", [1]):
             text += f"; not validated at {scene.run.threads} threads"
         return text

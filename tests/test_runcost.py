@@ -104,8 +104,8 @@ def test_lbmpipe_check_prints_the_wall_time_prediction_with_its_validated_error(
     from lbmpipe.units import derive
 
     model = {"intercept_s": 2.0, "s_per_step": 5e-4, "s_per_node_update": 5e-8, "s_per_link_update": 5e-8,
-             "s_per_particle_step": 1e-5, "median_abs_rel_error": 0.083, "n_validated": 21,
-             "threads_measured": [1], "links_per_area_lu": 5.0}
+             "s_per_particle_step": 1e-5, "median_abs_rel_error": 0.083, "median_abs_rel_error_median_share": 0.121,
+             "n_validated": 21, "threads_measured": [1], "links_per_area_lu": 5.0, "median_cpu_share": 0.8}
     mpath = tmp_path / "cost_model.json"
     mpath.write_text(json.dumps(model))
     scene = Path(__file__).resolve().parents[1] / "scenes" / "pipe_re9.4.yaml"
@@ -114,8 +114,9 @@ def test_lbmpipe_check_prints_the_wall_time_prediction_with_its_validated_error(
     line = next(ln for ln in capsys.readouterr().out.splitlines() if "predicted run time" in ln)
     threads = load_scene(scene).run.threads or 1
     expected = 2.0 + params.n_steps * (5e-8 * params.fluid_nodes + 5e-4) / threads
-    assert _duration(expected) in line
-    assert "median error 8 % on 21 production runs held out" in line and str(mpath) in line
+    assert _duration(expected) in line and _duration(expected / 0.8) in line
+    assert "median error 8 % given a run's share, 12 % at the median share, on 21 production runs held out" in line
+    assert str(mpath) in line
 
 
 def test_validation_table_and_model_are_written_beside_the_level_tables(tmp_path):
@@ -127,3 +128,24 @@ def test_validation_table_and_model_are_written_beside_the_level_tables(tmp_path
     assert json.loads((tmp_path / "tables" / "cost_model.json").read_text())["n_runs"] == model["n_runs"] == 2
     val = pd.read_csv(tmp_path / "tables" / "cost_validation.csv")
     assert list(val["run"]) == names and {"predicted_s", "rel_error", "family"} <= set(val.columns)
+
+
+def test_a_run_slowed_by_other_jobs_is_predicted_from_its_share_of_a_core(tmp_path):
+    # the same work in every family; one family's runs got half a core (its wall time doubled,
+    # its effects' wall timings with it): given its share, every run is predicted exactly
+    runs = {}
+    for case, share in (("cube8_c30_re9.4", 0.5), ("cyl16x16_c30_re9.4", 1.0), ("cyl8x8_c30_re9.4", 1.0)):
+        s = _summary(2000, links=100000, count=10, scale=1.0 / share)
+        wall = s["wall_seconds"] + SETUP / share
+        runs[f"{case}/seed1"] = (s, wall)
+    names = _write_level(tmp_path, runs)
+    for run, (s, wall) in runs.items():  # the benchmark's CPU seconds: the share times the wall
+        share = 0.5 if run.startswith("cube8") else 1.0
+        (tmp_path / "benchmarks" / f"{run}.simulate.tsv").write_text(
+            f"s\th:m:s\tmax_rss\tcpu_time\n{wall}\t0:00:01\t100\t{share * wall}\n")
+    model, val = runcost.build(tmp_path, names, "test")
+    assert model["s_per_link_update"] == pytest.approx(LINK)
+    assert np.allclose(val["rel_error"], 0.0, atol=1e-9)
+    slow = val[val["run"].str.startswith("cube8")]
+    assert float(slow["cpu_share"].iloc[0]) == pytest.approx(0.5)
+    assert float(slow["rel_error_median_share"].iloc[0]) == pytest.approx(-0.5)

@@ -466,12 +466,15 @@ def runtime_section(fid_dir: Path, fidelity: str) -> dict:
                         "families": fmt(model.get("families")), "n_validated": fmt(model.get("n_validated")),
                         "median_pct": fmt(100 * float(model.get("median_abs_rel_error", float("nan")))),
                         "max_pct": fmt(100 * float(model.get("max_abs_rel_error", float("nan")))),
+                        "median_share_pct": fmt(100 * float(model.get("median_abs_rel_error_median_share", float("nan")))),
+                        "max_share_pct": fmt(100 * float(model.get("max_abs_rel_error_median_share", float("nan")))),
+                        "share": fmt(model.get("median_cpu_share")),
                         "ns_node": fmt(1e9 * model.get("s_per_node_update", 0.0)),
                         "ns_link": fmt(1e9 * model.get("s_per_link_update", 0.0)),
                         "us_particle": fmt(1e6 * model.get("s_per_particle_step", 0.0)),
                         "ms_step": fmt(1e3 * model.get("s_per_step", 0.0)), "intercept_s": fmt(model.get("intercept_s")),
                         "table": table_of(val, ["run", "family", "steps", "particles", "links", "wall_s", "predicted_s",
-                                                "rel_error", "cpu_share"]) if val is not None and len(val) else None}
+                                                "rel_error", "cpu_share", "rel_error_median_share"]) if val is not None and len(val) else None}
     if df is not None:
         d = df.copy()
         if "wall_s" in d:

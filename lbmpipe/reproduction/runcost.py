@@ -14,20 +14,24 @@ rest of the loop      sampling, reporting, checkpoints                          
 set-up and output     process wall time outside the time loop                    (once per run)
 ====================  =========================================================  ==========================
 
-``wall_s = intercept_s + steps (s_per_node_update nodes + s_per_link_update links
-+ s_per_particle_step particles + s_per_step) / threads``. Each coefficient is the median over
-the fitted runs of the group's seconds over its work (a ratio: long and short runs count alike).
-The measured wall time of a run is its Snakemake benchmark's wall seconds, or, for a run resumed
-from a checkpoint (the benchmark saw only its last part), the loop's accumulated seconds plus
-set-up. The production runs are single-threaded; dividing by ``threads`` assumes ideal scaling
-and is not validated here (``benchmarks/fluid.py`` measures the thread scaling). The model
-predicts wall time under the conditions its runs had: ``cpu_share`` (CPU over wall seconds of
-each run's benchmark) records how much of a core a run got beside the others on the host.
+``wall_s = (intercept_s + steps (s_per_node_update nodes + s_per_link_update links
++ s_per_particle_step particles + s_per_step) / threads) / share``: the work in seconds of a core
+of one's own, over the share of a core the run gets. The host's other jobs set that share, not the
+scene: each run's benchmark measures it (``cpu_share``: CPU over wall seconds), and the group
+timings, wall seconds inside the process, are turned into a core's own seconds by it. Each
+coefficient is the median over the fitted runs of the group's core seconds over its work (a ratio:
+long and short runs count alike). The measured wall time of a run is its Snakemake benchmark's wall
+seconds, or, for a run resumed from a checkpoint (the benchmark saw only its last part), the loop's
+accumulated seconds plus set-up, with the median share. The production runs are single-threaded;
+dividing by ``threads`` assumes ideal scaling and is not validated here (``benchmarks/fluid.py``
+measures the thread scaling).
 
 Validation is leave-one-family-out: a family is a case with its Reynolds numbers and seeds
 (``cyl8x16_c30`` holds ``cyl8x16_c30_re9.4/seed1`` ... ``cyl8x16_c30_re26/seed3``), so a run is
 never predicted by a model fitted to another seed or the other Reynolds number of its own
-packing. The model's error is the median absolute relative error of those predictions.
+packing. The model's error is the median absolute relative error of those predictions of the
+wall time, given each run's measured share (the model of the work) and at the fitted runs' median
+share (what a user who does not know the host's load can expect).
 """
 
 from __future__ import annotations
@@ -99,59 +103,76 @@ def level_rows(level_dir: Path, runs: list[str]) -> pd.DataFrame:
         wall, cpu = _bench(Path(level_dir) / "benchmarks" / f"{run}.simulate.tsv")
         row = run_row(run, summary, wall)
         if row is not None:
-            # the share of a core the run got (other runs and jobs on the host take the rest): what
-            # the wall time depends on beyond the work
-            row["cpu_share"] = cpu / wall if not row["resumed"] and wall > 0 else float("nan")
+            # the share of a core per thread the run got (other runs and jobs on the host take the
+            # rest): what the wall time depends on beyond the work
+            row["cpu_share"] = cpu / (wall * row["threads"]) if not row["resumed"] and wall > 0 else float("nan")
             rows.append(row)
     return pd.DataFrame(rows, columns=COLUMNS)
 
 
+def _shares(rows: pd.DataFrame) -> pd.Series:
+    """Each run's share of a core; the median of the others where unmeasured (a resumed run)."""
+    sh = rows["cpu_share"].astype(float).clip(upper=1.0)
+    med = sh.median()
+    return sh.fillna(med if math.isfinite(med) else 1.0)
+
+
 def fit(rows: pd.DataFrame) -> dict:
     """The model's coefficients from ``rows`` (:func:`level_rows`): per group, the median of
-    seconds x threads / (work x steps) over the runs that have that work."""
-    model = {"formula": "wall_s = intercept_s + steps * (s_per_node_update * fluid_nodes + s_per_link_update * links"
-                        " + s_per_particle_step * particles + s_per_step) / threads",
+    core seconds (wall x share) x threads / (work x steps) over the runs that have that work."""
+    model = {"formula": "wall_s = (intercept_s + steps * (s_per_node_update * fluid_nodes + s_per_link_update * links"
+                        " + s_per_particle_step * particles + s_per_step) / threads) / cpu_share",
              "n_runs": int(len(rows)), "intercept_s": 0.0, "s_per_step": 0.0,
              **{coef: 0.0 for _, coef in WORK.values()}}
     if not len(rows):
         return model
+    share = _shares(rows)
     thr = rows["threads"].clip(lower=1).astype(float)
     steps = rows["steps"].astype(float)
     for g, (work, coef) in WORK.items():
         has = rows[work] > 0
         if has.any():
-            model[coef] = float(np.median(rows.loc[has, f"{g}_s"] * thr[has] / (rows.loc[has, work] * steps[has])))
-    model["s_per_step"] = float(np.median(rows["rest_s"] * thr / steps))
+            core_s = rows.loc[has, f"{g}_s"] * share[has] * thr[has]
+            model[coef] = float(np.median(core_s / (rows.loc[has, work] * steps[has])))
+    model["s_per_step"] = float(np.median(rows["rest_s"] * share * thr / steps))
     fresh = ~rows["resumed"].astype(bool)
-    model["intercept_s"] = float(np.median(rows.loc[fresh, "overhead_s"])) if fresh.any() else 0.0
+    model["intercept_s"] = float(np.median((rows["overhead_s"] * share)[fresh])) if fresh.any() else 0.0
+    model["median_cpu_share"] = float(share.median())
     return model
 
 
-def predict(model: dict, steps, nodes, links=0.0, particles=0.0, threads=1):
-    """Wall seconds of runs (scalars or arrays) under ``model``."""
+def predict(model: dict, steps, nodes, links=0.0, particles=0.0, threads=1, share=1.0):
+    """Wall seconds of runs (scalars or arrays) under ``model``, each getting ``share`` of a
+    core per thread (1: a core of its own)."""
     t = np.maximum(np.asarray(threads, dtype=float), 1.0)
     per_step = (model["s_per_node_update"] * np.asarray(nodes, float) + model["s_per_link_update"] * np.asarray(links, float)
                 + model["s_per_particle_step"] * np.asarray(particles, float) + model["s_per_step"])
-    return model["intercept_s"] + np.asarray(steps, float) * per_step / t
+    return (model["intercept_s"] + np.asarray(steps, float) * per_step / t) / np.asarray(share, float)
 
 
 def validate(rows: pd.DataFrame) -> pd.DataFrame:
     """Leave-one-family-out predictions: each run predicted by the model fitted to the other
-    families' runs. Adds ``predicted_s``, ``rel_error`` (predicted / measured - 1) and
-    ``fitted_on`` (runs in that fit); NaN where no other family exists."""
+    families' runs, at the run's measured share (``predicted_s``, ``rel_error`` = predicted /
+    measured - 1) and at the other families' median share (``predicted_median_share_s``,
+    ``rel_error_median_share``); ``fitted_on``: runs in that fit. NaN where no other family exists."""
     out = rows.copy()
-    out["predicted_s"], out["rel_error"], out["fitted_on"] = np.nan, np.nan, 0
+    share = _shares(rows)
+    for c in ("predicted_s", "rel_error", "predicted_median_share_s", "rel_error_median_share"):
+        out[c] = np.nan
+    out["fitted_on"] = 0
     for fam in rows["family"].unique():
         held = rows["family"] == fam
         train = rows[~held]
         if not len(train):
             continue
         m = fit(train)
-        pred = predict(m, rows.loc[held, "steps"], rows.loc[held, "nodes"], rows.loc[held, "links"],
-                       rows.loc[held, "particles"], rows.loc[held, "threads"])
-        out.loc[held, "predicted_s"] = pred
-        out.loc[held, "rel_error"] = pred / rows.loc[held, "wall_s"] - 1.0
+        args = (m, rows.loc[held, "steps"], rows.loc[held, "nodes"], rows.loc[held, "links"], rows.loc[held, "particles"],
+                rows.loc[held, "threads"])
+        out.loc[held, "predicted_s"] = predict(*args, share=share[held])
+        out.loc[held, "predicted_median_share_s"] = predict(*args, share=m["median_cpu_share"])
         out.loc[held, "fitted_on"] = len(train)
+    out["rel_error"] = out["predicted_s"] / rows["wall_s"] - 1.0
+    out["rel_error_median_share"] = out["predicted_median_share_s"] / rows["wall_s"] - 1.0
     return out
 
 
@@ -162,6 +183,7 @@ def build(level_dir: Path, runs: list[str], level: str) -> tuple[dict, pd.DataFr
     model = fit(rows)
     val = validate(rows)
     err = val["rel_error"].abs().dropna()
+    err_med = val["rel_error_median_share"].abs().dropna()
     model.update({
         "level": level, "target": "wall_s (Snakemake benchmark; loop + set-up for a resumed run)",
         "validation": "leave one case family out (both Reynolds numbers and every seed of a case held out together)",
@@ -169,8 +191,9 @@ def build(level_dir: Path, runs: list[str], level: str) -> tuple[dict, pd.DataFr
         "n_validated": int(len(err)),
         "median_abs_rel_error": float(err.median()) if len(err) else float("nan"),
         "max_abs_rel_error": float(err.max()) if len(err) else float("nan"),
+        "median_abs_rel_error_median_share": float(err_med.median()) if len(err_med) else float("nan"),
+        "max_abs_rel_error_median_share": float(err_med.max()) if len(err_med) else float("nan"),
         "threads_measured": sorted(int(t) for t in rows["threads"].unique()) if len(rows) else [],
-        "median_cpu_share": float(rows["cpu_share"].median()) if len(rows) else float("nan"),
         "links_per_area_lu": links_per_area_lu(level_dir, rows),
     })
     return model, val
@@ -200,10 +223,11 @@ def links_per_area_lu(level_dir: Path, rows: pd.DataFrame) -> float:
     return float(np.median(vals)) if vals else float("nan")
 
 
-def predict_scene(model: dict, scene, params) -> float:
-    """Predicted wall seconds of a validated ``Scene`` with lattice parameters ``params``: the
-    particles' links estimated from their surface area (``links_per_area_lu`` of the model),
-    their count as the packer or random placement would make it."""
+def predict_scene(model: dict, scene, params, share: float = 1.0) -> float:
+    """Predicted wall seconds of a validated ``Scene`` with lattice parameters ``params``, with
+    ``share`` of a core per thread: the particles' links estimated from their surface area
+    (``links_per_area_lu`` of the model), their count as the packer or random placement would
+    make it."""
     from .study import D3Q15_LINKS_PER_AREA, scene_particle_load
 
     count, area_mm2 = scene_particle_load(scene)
@@ -211,4 +235,4 @@ def predict_scene(model: dict, scene, params) -> float:
     lpa = float(lpa) if lpa is not None and math.isfinite(float(lpa)) else D3Q15_LINKS_PER_AREA
     links = lpa * area_mm2 / scene.numerics.dx_mm**2
     threads = scene.run.threads or 1
-    return float(predict(model, params.n_steps, params.fluid_nodes, links, count, threads))
+    return float(predict(model, params.n_steps, params.fluid_nodes, links, count, threads, share))
