@@ -263,3 +263,18 @@ def test_averaging_recommendation_rests_on_at_least_20_batches_and_names_them(tm
     best = rec["references"]["averaging"]["recommended"]
     assert best["n_batches"] >= 20
     assert "rests on" in study.recommendation_markdown(rec)
+
+
+def test_no_averaging_window_with_too_few_batches_is_called_the_most_accurate():
+    # two windows, both on fewer than 20 batches: the target is not met, and the report names the
+    # longest window's batches instead of the smaller, meaningless error of the shorter one
+    rows = pd.DataFrame([
+        {"reference": "averaging", "knob": "averaging time", "setting": f"{s} s", "run": f"w{s}", "error": e, "cpu_s": c,
+         "averaging_s": s, "n_batches": b, "batch_s": 0.1, "interval": "overlapping batch means", "status": "insufficient"}
+        for s, e, c, b in ((0.5, 0.01, 10.0, 5), (1.5, 0.04, 30.0, 15))])
+    rec = study.recommend(rows, {"averaging": 0.05}, cost="cpu_s")
+    entry = rec["references"]["averaging"]
+    assert entry["verdict"] == "not met" and "most_accurate" not in entry
+    assert entry["no_valid_interval"]["averaging_s"] == 1.5
+    text = study.recommendation_markdown(rec)
+    assert "no tested setting has an interval that rests on 20 batches" in text and "15 batch(es)" in text

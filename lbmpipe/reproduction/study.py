@@ -727,9 +727,14 @@ def recommend(df: pd.DataFrame, targets: dict, cost: str = "cpu_s", model: dict 
         else:
             entry["verdict"] = "not met" if entry["measured"] else "not measurable"
             fin = sub[np.isfinite(sub["error"].astype(float))] if len(sub) else sub
-            if len(fin):
-                most = fin.loc[fin["error"].astype(float).idxmin()]
+            # an error whose interval rests on too few batches is no measurement of accuracy
+            valid = fin[fin["status"].astype(str) != "insufficient"] if "status" in fin else fin
+            if len(valid):
+                most = valid.loc[valid["error"].astype(float).idxmin()]
                 entry["most_accurate"] = {k: most[k] for k in _KEEP if k in most}
+            elif len(fin):
+                longest = fin.loc[fin[cost].astype(float).idxmax()]
+                entry["no_valid_interval"] = {k: longest[k] for k in _KEEP if k in longest}
         out["references"][ref] = entry
     out["joint"] = _joint(df, targets, cost, model, case_scene, case_threads)
     return _jsonable(out)
@@ -1039,6 +1044,11 @@ def recommendation_markdown(rec: dict, model: dict | None = None) -> str:
                      if r.get("n_batches") else "")
             out.append(head + f"cheapest meeting it: {desc}, error {r['error']:.3g}, "
                               f"{r.get(rec['cost'], float('nan')):.3g} s{rests}.")
+        elif e.get("verdict") == "not met" and "no_valid_interval" in e:
+            r = e["no_valid_interval"]
+            out.append(head + "not met: no tested setting has an interval that rests on 20 batches of 5 correlation "
+                              f"times; the longest, {_describe(ref, r)}, has {r.get('n_batches', 0):g} batch(es) of "
+                              f"{r.get('batch_s', float('nan')):.3g} s ({r.get('interval', '')}).")
         elif e.get("verdict") == "not met":
             r = e.get("most_accurate", {})
             out.append(head + f"not met by any tested setting; the most accurate was {_describe(ref, r)} "
@@ -1052,8 +1062,10 @@ def recommendation_markdown(rec: dict, model: dict | None = None) -> str:
                 f"dt = {j['dt_factor']:g} x the paper's dt per mm, {j['collision']}, wall {j['wall']}, {j['precision']} "
                 f"(pipe error {j['pipe_error']:.3g}, drag error {j['drag_error']:.3g}).")
         if j.get("predicted_case_seconds") is not None:
-            line += (f" Predicted wall time of case `{j['predicted_case']}` with it on {j.get('predicted_case_threads')} "
-                     f"thread(s): {j['predicted_case_seconds']:.3g} s (cost model).")
+            what = "CPU time" if (model or {}).get("target") == "cpu_s" else "wall time"
+            line += (f" Predicted {what} of case `{j['predicted_case']}` with it on {j.get('predicted_case_threads')} "
+                     f"thread(s): {j['predicted_case_seconds']:.3g} s (the study's cost model below; a production "
+                     f"run's wall time: the level's `tables/cost_model.json`).")
         out.append(line)
     else:
         out.append(f"**Joint setting**: {j.get('verdict')}: {j.get('reason', '')}")
