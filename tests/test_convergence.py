@@ -74,5 +74,6 @@ def test_a_case_missing_at_a_spacing_says_how_many_were_run(tmp_path):
     _case(tmp_path, "coarse", "flow_re9.4", None, None, profile_scale=0.04)
     s = convergence.write(_config(), "base", tmp_path, tmp_path / "base" / "convergence")
     order = pd.read_csv(tmp_path / "base" / "convergence" / "order.csv")
-    assert order["status"].tolist() == ["2 of 3 spacings run"] and s["observed"] == 0
+    assert order["status"].tolist() == ["2 of 3 spacings run; the change exceeds its interval"] and s["observed"] == 0
+    assert order["d1"].iloc[0] == pytest.approx(0.03)  # profile distance 0.04 at 2 mm, 0.01 at 1 mm
     assert s["levels"] == {"coarse": 2.0, "base": 1.0, "fine": 0.5}

@@ -9,7 +9,7 @@ record (``cases/<case>/stats.json``, the seeds combined where a level has severa
 ``d1 = f(h) - f(h/2)`` and ``d2 = f(h/2) - f(h/4)`` carry the two values' intervals combined
 (``sqrt(ci_a^2 + ci_b^2)``). The observed order ``p = log2(|d1| / |d2|)`` is given only when both
 changes exceed their intervals and share a sign (monotone convergence); otherwise the status says
-which change the noise hides. The cost beside each value is the level's measured wall seconds
+which change the noise hides. The cost beside each value is the level's measured time-loop seconds
 per simulated second of that case (``tables/runtime.csv``, summed over its seeds' runs).
 """
 
@@ -26,7 +26,7 @@ from .cases import level_cases
 from .health import read_json
 from .methods import ANGLE_KEY
 
-ROW_COLUMNS = ["case", "observable", "level", "dx_mm", "value", "ci95", "n_seeds", "wall_s_per_sim_s", "flags"]
+ROW_COLUMNS = ["case", "observable", "level", "dx_mm", "value", "ci95", "n_seeds", "loop_s_per_sim_s", "flags"]
 ORDER_COLUMNS = ["case", "observable", "dx_mm", "d1", "d1_ci95", "d2", "d2_ci95", "order", "status"]
 
 
@@ -69,7 +69,7 @@ def case_values(case_dir: Path) -> dict[str, tuple[float, float]]:
 
 
 def _cost(level_dir: Path, case: str) -> float:
-    """Wall seconds per simulated second of a case at a level, its seeds' runs summed."""
+    """Time-loop seconds per simulated second of a case at a level, its seeds' runs summed."""
     try:
         rt = pd.read_csv(Path(level_dir) / "tables" / "runtime.csv")
     except (OSError, ValueError, pd.errors.EmptyDataError):
@@ -78,7 +78,9 @@ def _cost(level_dir: Path, case: str) -> float:
     rows = rows[rows["status"] == "completed"]
     if not len(rows):
         return float("nan")
-    return float(rows["wall_s"].astype(float).sum() / rows["simulated_s"].astype(float).mean())
+    # the time loop's seconds (s_per_step x steps): start-up and compilation are no cost of the lattice
+    loop = rows["s_per_step"].astype(float) * rows["steps"].astype(float)
+    return float(loop.sum() / rows["simulated_s"].astype(float).mean())
 
 
 def value_rows(config: dict, base: str, root: Path = Path("results")) -> pd.DataFrame:
@@ -95,7 +97,7 @@ def value_rows(config: dict, base: str, root: Path = Path("results")) -> pd.Data
                 rows.append({"case": case, "observable": obs, "level": lv,
                              "dx_mm": float(config["fidelities"][lv]["dx_mm"]), "value": v, "ci95": c,
                              "n_seeds": int(stats.get("n_seeds", 1)) if stats else 1,
-                             "wall_s_per_sim_s": _cost(Path(root) / lv, case),
+                             "loop_s_per_sim_s": _cost(Path(root) / lv, case),
                              "flags": ";".join(stats.get("flags") or [])})
     return pd.DataFrame(rows, columns=ROW_COLUMNS)
 
@@ -108,8 +110,14 @@ def order_rows(values: pd.DataFrame) -> pd.DataFrame:
         g = g.sort_values("dx_mm", ascending=False)
         dx = g["dx_mm"].to_numpy(float)
         if len(g) < 3:
-            rows.append({"case": case, "observable": obs, "dx_mm": " ".join(f"{x:g}" for x in dx),
-                         "status": f"{len(g)} of 3 spacings run"})
+            row = {"case": case, "observable": obs, "dx_mm": " ".join(f"{x:g}" for x in dx),
+                   "status": f"{len(g)} of 3 spacings run"}
+            if len(g) == 2:  # the one change there is, and whether it stands out of the noise
+                f, c = g["value"].to_numpy(float), np.nan_to_num(g["ci95"].to_numpy(float))
+                row.update(d1=f[0] - f[1], d1_ci95=math.hypot(c[0], c[1]))
+                row["status"] += ("; the change exceeds its interval" if abs(row["d1"]) > row["d1_ci95"]
+                                  else "; the change is within its interval")
+            rows.append(row)
             continue
         f, c = g["value"].to_numpy(float)[:3], g["ci95"].to_numpy(float)[:3]
         c = np.where(np.isfinite(c), c, 0.0)  # a value without an interval (the profile) adds none

@@ -553,7 +553,7 @@ def convergence_section(fid_dir: Path, fidelity: str, config: dict) -> dict | No
         info.append({"level": lv, "dx": fmt(config["fidelities"][lv]["dx_mm"]), "done": done, "planned": len(runs)})
     return {"levels": info, "observed": summ.get("observed", 0), "compared": summ.get("compared", 0),
             "order_table": table_of(order, list(order.columns)) if order is not None and len(order) else None,
-            "value_table": table_of(vals, ["case", "observable", "dx_mm", "value", "ci95", "n_seeds", "wall_s_per_sim_s", "flags"])
+            "value_table": table_of(vals, ["case", "observable", "dx_mm", "value", "ci95", "n_seeds", "loop_s_per_sim_s", "flags"])
             if vals is not None and len(vals) else None}
 
 
