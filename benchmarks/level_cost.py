@@ -51,18 +51,19 @@ def main(argv=None) -> int:
     runs = level_runs(config, level)
     model, val = runcost.build(level_dir, runs, level)
     done = dict(zip(val["run"], val["wall_s"]))
-    if model["n_runs"] < 2:  # too few runs of its own: the default level's model (same host)
+    if model.get("families", 0) < 3:  # too few runs of its own to identify the model: the default level's (same host)
         base = config["fidelity"]
         model, _ = runcost.build(Path(args.results) / base, level_runs(config, base), base)
         print(f"(level {level} has {len(done)} runs: predicting with level {base}'s cost model)")
 
-    rows, unpackable = [], []
+    rows, unpackable, own_core = [], [], {}
     for r in runs:
         if _status(level_dir, r) == "unpackable" or _status(Path(args.results) / "paper", split_run(r)[0]) == "unpackable":
             unpackable.append(r)  # no run: the packer cannot reach the concentration
             continue
         sc = _scene(config, level, r)
         params = derive(sc)
+        own_core[r] = runcost.predict_scene(model, sc, params, 1.0)
         if r in done:
             rows.append((r, params.n_steps, float(done[r]), "measured"))
         else:
@@ -78,11 +79,12 @@ def main(argv=None) -> int:
         print(f"{r:40s} {n:8d} {wall / n:8.4f} {wall / 60:8.1f}  {src}")
     total = sum(w for _, _, w, _ in rows)
     todo = sum(w for _, _, w, src in rows if src != "measured")
-    longest = max(rows, key=lambda x: x[2]) if rows else None
+    longest = max(own_core.items(), key=lambda x: x[1]) if own_core else None
     print(f"\nwhole level: {total / 3600:.1f} core-hours ({total / 7200:.1f} h on 2 cores, one run per core); "
           f"still to run: {todo / 3600:.1f} core-hours ({todo / 7200:.1f} h on 2 cores)")
     if longest:
-        print(f"on a cluster with a core per run: the longest run, {longest[0]}, {longest[2] / 60:.0f} min")
+        print(f"on a cluster with a core of its own per run (the model at share 1): the longest run, {longest[0]}, "
+              f"{longest[1] / 60:.0f} min")
     if unpackable:
         print(f"not packable (no run): {', '.join(unpackable)}")
     return 0
