@@ -486,7 +486,7 @@ def runtime_section(fid_dir: Path, fidelity: str) -> dict:
         lv = _read_csv(level_dir / "tables" / "runtime.csv")
         if lv is None or "wall_s" not in lv or len(lv) == 0:
             continue
-        ran = lv[lv["status"].astype(str) != "unpackable"] if "status" in lv else lv
+        ran = lv[~lv["status"].astype(str).isin(["unpackable", "not run"])] if "status" in lv else lv
         w = ran["wall_s"].astype(float)
         sec["levels"].append({"level": level_dir.name, "cases": fmt(len(ran)),
                               "total_h": fmt(w.sum() / 3600.0), "median_case_h": fmt(w.median() / 3600.0),
