@@ -45,13 +45,17 @@ def test_a_level_with_a_case_list_runs_only_those_cases_once_per_seed():
     assert methods.comparison_level(CONFIG, "credible") == "credible_accurate"
 
 
-def test_config_naming_an_unknown_case_or_level_is_an_error_with_its_fix():
+def test_config_naming_an_unknown_level_is_an_error_and_a_trimmed_case_list_is_skipped():
     bad = copy.deepcopy(CONFIG)
-    bad["fidelities"]["credible_accurate"]["cases"] = ["flow_re9.4", "cyl99_c30_re9.4"]
     bad["fidelities"]["credible_accurate"]["compare_with"] = "nosuchlevel"
     probs = cases.config_problems(bad, ROOT / cases.CONFIG_SCHEMA)
-    assert any("fidelities.credible_accurate.cases: cyl99_c30_re9.4" in p and "Fix:" in p for p in probs)
     assert any("fidelities.credible_accurate.compare_with" in p and "Fix:" in p for p in probs)
+    # a config trimmed to two cases keeps every level valid; a level runs the cases it names that remain
+    trimmed = copy.deepcopy(CONFIG)
+    trimmed["cases"] = {k: CONFIG["cases"][k] for k in ("flow_re9.4", "cube8_c30_re9.4")}
+    assert cases.config_problems(trimmed, ROOT / cases.CONFIG_SCHEMA) == []
+    assert cases.level_cases(trimmed, "credible_accurate") == ["cube8_c30_re9.4", "flow_re9.4"]
+    assert cases.level_cases(trimmed, "credible_dx2") == ["flow_re9.4"]
 
 
 def _run(root, level, run, omega, ci, angle=None, profile=0.01, flags=()):
