@@ -78,10 +78,16 @@ def paper_extra_inputs(wildcards):
     level = study_level(config, wildcards.fidelity)
     extra = [pattern.format(fidelity=level) for pattern in PAPER_EXTRA_INPUTS]
     if comparison_level(config, wildcards.fidelity) is not None:
-        extra.append(f"results/{wildcards.fidelity}/method/summary.json")
+        extra += [f"results/{wildcards.fidelity}/method/{name}" for name in ("summary.json", "method_comparison.png")]
     if len(convergence_levels(config, wildcards.fidelity)) > 1:
         extra.append(f"results/{wildcards.fidelity}/convergence/summary.json")
     return extra
+
+
+# a level's name is one path component (results/<level>/...): results/<level>/method/claims.csv is
+# the method comparison's, never the claims of a level "<level>/method"
+wildcard_constraints:
+    fidelity="[^/]+",
 
 
 include: "workflow/rules/common.smk"

@@ -13,7 +13,6 @@ enters through the runs done here, so quote it with the host (benchmarks/README.
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from pathlib import Path
 
@@ -23,6 +22,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from lbmpipe.reproduction import runcost  # noqa: E402
+from lbmpipe.reproduction.health import read_json  # noqa: E402
 from lbmpipe.reproduction.cases import case_scene, level_runs, run_case, split_run  # noqa: E402
 from lbmpipe.scene import Scene  # noqa: E402
 from lbmpipe.units import derive  # noqa: E402
@@ -34,10 +34,7 @@ def _scene(config: dict, level: str, run: str) -> Scene:
 
 
 def _status(level_dir: Path, run: str) -> str | None:
-    try:
-        return json.loads((level_dir / "cases" / run / "summary.json").read_text()).get("status")
-    except (OSError, ValueError):
-        return None
+    return (read_json(level_dir / "cases" / run / "summary.json") or {}).get("status")
 
 
 def main(argv=None) -> int:

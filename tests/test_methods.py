@@ -4,12 +4,14 @@ Bouzidi pipe wall, on the same lattice and packings, compared run by run and cla
 import copy
 import json
 from pathlib import Path
+from unittest import mock
 
 import pandas as pd
 import pytest
 import yaml
 
 from lbmpipe.reproduction import cases, methods
+from lbmpipe.reproduction import claims as claims_mod
 from lbmpipe.scene import Scene
 from lbmpipe.units import derive
 
@@ -50,6 +52,10 @@ def test_config_naming_an_unknown_level_is_an_error_and_a_trimmed_case_list_is_s
     bad["fidelities"]["credible_accurate"]["compare_with"] = "nosuchlevel"
     probs = cases.config_problems(bad, ROOT / cases.CONFIG_SCHEMA)
     assert any("fidelities.credible_accurate.compare_with" in p and "Fix:" in p for p in probs)
+    bad = copy.deepcopy(CONFIG)
+    bad["fidelities"]["credible_dx2"]["convergence_of"] = "nosuchlevel"
+    probs = cases.config_problems(bad, ROOT / cases.CONFIG_SCHEMA)
+    assert any("fidelities.credible_dx2.convergence_of" in p and "Fix:" in p for p in probs)
     # a config trimmed to two cases keeps every level valid; a level runs the cases it names that remain
     trimmed = copy.deepcopy(CONFIG)
     trimmed["cases"] = {k: CONFIG["cases"][k] for k in ("flow_re9.4", "cube8_c30_re9.4")}
@@ -101,17 +107,25 @@ def test_an_accurate_run_without_its_paper_method_partner_is_not_compared(tmp_pa
     assert len(methods.run_rows(_config(), "base", "acc", tmp_path)) == 0
 
 
-def test_claim_verdicts_side_by_side_mark_the_changed_ones():
+def test_claim_verdicts_side_by_side_mark_the_changed_ones(tmp_path):
     cols = ["claim", "statement", "statistic", "values", "verdict", "reason"]
-    level = pd.DataFrame([[1, "a", "", "", "reproduced", ""], [2, "b", "", "", "reproduced", ""]], columns=cols)
     paper = pd.DataFrame([[1, "a", "", "", "reproduced", "interval excludes 0"],
                           [2, "b", "", "", "inconclusive", "inputs missing: x: not run"]], columns=cols)
     acc = pd.DataFrame([[1, "a", "", "", "contradicted", "the opposite ordering"],
                         [2, "b", "", "", "inconclusive", "inputs missing: x: not run"]], columns=cols)
-    c = methods.claim_rows(level, paper, acc).set_index("claim")
-    assert c.loc[1, "same"] == "no" and c.loc[1, "verdict_accurate_seed1"] == "contradicted"
-    assert c.loc[2, "same"] == "not compared" and c.loc[2, "verdict"] == "reproduced"
-    assert methods.summary(pd.DataFrame(columns=methods.RUN_COLUMNS), c.reset_index())["claims_changed"] == [1]
+    c = methods.claim_rows(paper, acc)
+    by = c.set_index("claim")
+    assert by.loc[1, "same"] == "no" and by.loc[1, "verdict_accurate_seed1"] == "contradicted"
+    assert by.loc[2, "same"] == "not compared"
+    assert methods.summary(pd.DataFrame(columns=methods.RUN_COLUMNS), c)["claims_changed"] == [1]
+    # the level's claims.csv carries both methods' verdicts beside its own
+    c.to_csv(tmp_path / "method_claims.csv", index=False)
+    level = pd.DataFrame([[1, "a", "", "", "reproduced", ""], [2, "b", "", "", "reproduced", ""]], columns=cols)
+    with mock.patch.object(claims_mod, "evaluate_claims", return_value=level):
+        out = pd.read_csv(claims_mod.write_claims(tmp_path / "lvl", {}, tmp_path / "method_claims.csv")).set_index("claim")
+    assert list(out.loc[1, ["verdict", "verdict_paper_method_seed1", "verdict_accurate_method_seed1",
+                            "same_under_both_methods"]]) == ["reproduced", "reproduced", "contradicted", "no"]
+    assert out.loc[2, "same_under_both_methods"] == "not compared"
 
 
 def test_claims_from_seed_one_of_the_same_cases_under_each_method(tmp_path):
@@ -133,3 +147,4 @@ def test_comparison_writes_its_tables_even_before_any_accurate_run(tmp_path):
     s = methods.write(_config(), "base", tmp_path, tmp_path / "base" / "method")
     assert s["accurate_level"] == "acc" and s["accurate_runs_planned"] == 2 and s["pairs"] == 0
     assert (tmp_path / "base" / "method" / "runs.csv").exists() and (tmp_path / "base" / "method" / "claims.csv").exists()
+    assert (tmp_path / "base" / "method" / "method_comparison.png").stat().st_size > 0

@@ -303,10 +303,11 @@ def config_problems(config: dict, schema_path: str | Path) -> list[str]:
         return [f"config error in fidelity: {config['fidelity']!r} is not one of {sorted(config['fidelities'])}. "
                 "Fix: add it under `fidelities` or pick an existing level (--config fidelity=smoke)"]
     for fname, fid in config["fidelities"].items():
-        other = fid.get("compare_with")
-        if other is not None and other not in config["fidelities"]:
-            out.append(f"config error in fidelities.{fname}.compare_with: {other!r} is not a level. "
-                       f"Fix: one of {sorted(config['fidelities'])}")
+        for key in ("compare_with", "convergence_of"):  # levels that name another level
+            other = fid.get(key)
+            if other is not None and other not in config["fidelities"]:
+                out.append(f"config error in fidelities.{fname}.{key}: {other!r} is not a level. "
+                           f"Fix: one of {sorted(config['fidelities'])}")
     if out:
         return out
     for cname, case in config["cases"].items():

@@ -651,9 +651,19 @@ def evaluate_claims(fid_dir: Path, config_cases: dict) -> pd.DataFrame:
     return pd.DataFrame(rows, columns=COLUMNS)
 
 
-def write_claims(fid_dir: Path, config_cases: dict) -> Path:
-    """Write ``fid_dir/claims.csv`` and return its path."""
+def write_claims(fid_dir: Path, config_cases: dict, method_claims: Path | None = None) -> Path:
+    """Write ``fid_dir/claims.csv`` and return its path. With ``method_claims`` (the comparison
+    with the accurate method, ``method/claims.csv`` of ``lbmpipe.reproduction.methods``) each claim
+    also carries its verdict under both methods from packing seed 1 and whether they agree."""
     path = Path(fid_dir) / "claims.csv"
     path.parent.mkdir(parents=True, exist_ok=True)
-    evaluate_claims(fid_dir, config_cases).to_csv(path, index=False)
+    claims = evaluate_claims(fid_dir, config_cases)
+    if method_claims is not None:
+        from .methods import LEVEL_CLAIM_COLUMNS
+
+        m = pd.read_csv(method_claims).set_index("claim")
+        for src, dst in LEVEL_CLAIM_COLUMNS.items():
+            claims[dst] = claims["claim"].map(m[src]) if src in m else None
+        claims["same_under_both_methods"] = claims["same_under_both_methods"].fillna("not compared")
+    claims.to_csv(path, index=False)
     return path

@@ -23,8 +23,7 @@ import numpy as np
 import pandas as pd
 
 from .cases import level_cases
-from .health import read_json
-from .methods import ANGLE_KEY
+from .methods import completed_record, stats_values
 
 ROW_COLUMNS = ["case", "observable", "level", "dx_mm", "value", "ci95", "n_seeds", "loop_s_per_sim_s", "flags"]
 ORDER_COLUMNS = ["case", "observable", "dx_mm", "d1", "d1_ci95", "d2", "d2_ci95", "order", "status"]
@@ -51,29 +50,23 @@ def profile_distance(profile_csv: Path) -> float:
     return float(np.sqrt((w * (p["uz_m_s"] - ref) ** 2).sum() / (w * ref**2).sum()))
 
 
-def case_values(case_dir: Path) -> dict[str, tuple[float, float]]:
-    """(value, 95 % half-width) of each observable of one case's record; empty if not run."""
-    if ((read_json(Path(case_dir) / "summary.json") or {}).get("status")) != "completed":
-        return {}
-    out = {"profile_distance": (profile_distance(Path(case_dir) / "profile.csv"), float("nan"))}
-    stats = read_json(Path(case_dir) / "stats.json") or {}
-    mean, ci = stats.get("mean_abs_omega_rad_s") or {}, stats.get("ci95_rad_s") or {}
-    for ax in "xyz":
-        if ax in mean:
-            out[f"mean_abs_omega_{ax}"] = (float(mean[ax]), float(ci.get(ax) if ci.get(ax) is not None else np.nan))
-    angle = (stats.get("orientation") or {}).get(ANGLE_KEY.get(stats.get("shape"), ""), {})
-    if angle.get("mean_deg") is not None:
-        c = angle.get("ci95_deg")
-        out["mean_angle_deg"] = (float(angle["mean_deg"]), float(c) if c is not None else float("nan"))
-    return out
+def case_values(case_dir: Path) -> tuple[dict[str, tuple[float, float]], dict]:
+    """(value, 95 % half-width) of each observable of one case's record, the profile's distance
+    first, and the record itself; empty if the case is not run."""
+    record = completed_record(case_dir)
+    if record is None:
+        return {}, {}
+    stats = record[1]
+    return {"profile_distance": (profile_distance(Path(case_dir) / "profile.csv"), float("nan")),
+            **stats_values(stats)}, stats
 
 
-def _cost(level_dir: Path, case: str) -> float:
-    """Time-loop seconds per simulated second of a case at a level, its seeds' runs summed."""
-    try:
-        rt = pd.read_csv(Path(level_dir) / "tables" / "runtime.csv")
-    except (OSError, ValueError, pd.errors.EmptyDataError):
+def _cost(runtime: pd.DataFrame | None, case: str) -> float:
+    """Time-loop seconds per simulated second of a case at a level (its ``tables/runtime.csv``),
+    its seeds' runs summed."""
+    if runtime is None:
         return float("nan")
+    rt = runtime
     rows = rt[(rt["case"] == case) | rt["case"].astype(str).str.startswith(f"{case}/seed")]
     rows = rows[rows["status"] == "completed"]
     if not len(rows):
@@ -83,21 +76,29 @@ def _cost(level_dir: Path, case: str) -> float:
     return float(loop.sum() / rows["simulated_s"].astype(float).mean())
 
 
+def _runtime(level_dir: Path) -> pd.DataFrame | None:
+    try:
+        return pd.read_csv(Path(level_dir) / "tables" / "runtime.csv")
+    except (OSError, ValueError, pd.errors.EmptyDataError):
+        return None
+
+
 def value_rows(config: dict, base: str, root: Path = Path("results")) -> pd.DataFrame:
     """One row per case, observable and level of the convergence levels of ``base`` (the cases
     every refining level runs), where the case's record exists."""
     lvls = levels(config, base)
     shared = sorted(set.intersection(*[set(level_cases(config, lv)) for lv in lvls])) if len(lvls) > 1 else []
+    runtime = {lv: _runtime(Path(root) / lv) for lv in lvls}
     rows = []
     for case in shared:
         for lv in lvls:
-            d = Path(root) / lv / "cases" / case
-            stats = read_json(d / "stats.json") or {}
-            for obs, (v, c) in case_values(d).items():
+            values, stats = case_values(Path(root) / lv / "cases" / case)
+            cost = _cost(runtime[lv], case)
+            for obs, (v, c) in values.items():
                 rows.append({"case": case, "observable": obs, "level": lv,
                              "dx_mm": float(config["fidelities"][lv]["dx_mm"]), "value": v, "ci95": c,
                              "n_seeds": int(stats.get("n_seeds", 1)) if stats else 1,
-                             "loop_s_per_sim_s": _cost(Path(root) / lv, case),
+                             "loop_s_per_sim_s": cost,
                              "flags": ";".join(stats.get("flags") or [])})
     return pd.DataFrame(rows, columns=ROW_COLUMNS)
 

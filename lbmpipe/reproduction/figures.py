@@ -811,3 +811,50 @@ def make_figures(fid_dir: Path, fidelity: str, cases: dict | None = None) -> lis
     out += velocity_profiles(profiles, figs / "fig10_profiles", title=f"Fig. 10: axial velocity profiles ({lvl})",
                              parabola="first")
     return out
+
+
+# ----------------------------------------------------------------------------------------------
+# the method comparison (lbmpipe.reproduction.methods)
+
+#: colour of a claim's cell by whether its verdict is the same under both methods
+_SAME_COLOURS = {"yes": "#cde8c8", "no": "#f4b6b0", "not compared": "#eeeeee"}
+
+
+def method_comparison(runs: pd.DataFrame, claims: pd.DataFrame, stem: Path, title: str = "") -> list[Path]:
+    """What the method changes, as one figure: left, each paired run's relative difference of mean
+    |Omega| about x, y, z (accurate / paper - 1) with its 95 % interval (filled: the difference
+    exceeds the two runs' intervals combined); right, each claim's verdict under the paper's method
+    and the accurate one from packing seed 1, the cell red where they differ and grey where either
+    lacks inputs. ``runs`` and ``claims``: ``method/runs.csv`` and ``method/claims.csv``."""
+    om = runs[runs["observable"].astype(str).str.startswith("mean_abs_omega")] if len(runs) else runs
+    names = sorted(om["run"].unique()) if len(om) else []
+    fig, (ax, axc) = plt.subplots(1, 2, figsize=(12, max(3.5, 0.45 * max(len(names), len(claims)) + 1.5)),
+                                  gridspec_kw={"width_ratios": [1.2, 1]})
+    for k, (axis, colour) in enumerate(zip("xyz", ("C0", "C1", "C2"))):
+        sub = om[om["observable"] == f"mean_abs_omega_{axis}"] if len(om) else om
+        for i, (_, r) in enumerate(sub.iterrows()):
+            y = names.index(r["run"]) + (k - 1) * 0.22
+            ci = float(r["rel_diff_ci95"]) if pd.notna(r["rel_diff_ci95"]) else 0.0
+            filled = str(r["significant"]) == "True"
+            ax.errorbar(100 * float(r["rel_diff"]), y, xerr=100 * ci, fmt="o", color=colour,
+                        mfc=colour if filled else "white", label=f"|Omega_{axis}|" if i == 0 else None)
+    ax.axvline(0.0, color="k", lw=0.8)
+    ax.set_yticks(range(len(names)), names)
+    ax.invert_yaxis()
+    ax.set_xlabel("mean |Omega|: accurate / paper method - 1 (%), 95 % interval")
+    if names:
+        ax.legend(loc="best", fontsize=8)
+    else:
+        ax.text(0.5, 0.5, "no paired run done yet", ha="center", va="center", transform=ax.transAxes)
+    axc.axis("off")
+    if len(claims):
+        cells = [[str(r["claim"]), str(r["verdict_paper_seed1"]), str(r["verdict_accurate_seed1"])]
+                 for _, r in claims.iterrows()]
+        colours = [["white"] + [_SAME_COLOURS.get(str(r["same"]), "white")] * 2 for _, r in claims.iterrows()]
+        tab = axc.table(cellText=cells, cellColours=colours, colLabels=["claim", "paper method", "accurate method"],
+                        loc="upper center", cellLoc="center")
+        tab.auto_set_font_size(False)
+        tab.set_fontsize(8)
+        axc.set_title("verdicts from packing seed 1 (red: they differ; grey: not compared)", fontsize=9)
+    fig.suptitle(title)
+    return save(fig, stem)

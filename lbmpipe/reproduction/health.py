@@ -217,4 +217,5 @@ def health_is_computed(stats: dict | None) -> bool:
 
 
 def finite(v) -> bool:
-    return isinstance(v, (int, float)) and math.isfinite(v)
+    """A measured number (not a flag) that is finite."""
+    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)

@@ -496,7 +496,7 @@ def runtime_section(fid_dir: Path, fidelity: str) -> dict:
     return sec
 
 
-def method_comparison_section(fid_dir: Path, fidelity: str, config: dict) -> dict | None:
+def method_comparison_section(fid_dir: Path, fidelity: str, config: dict, out_dir: Path) -> dict | None:
     """What the method changes (``lbmpipe.reproduction.methods``): for a level another one
     compares with, that level, its runs done and planned, and the comparison's summary, claims
     and paired runs (``results/<level>/method/``); for an accurate-method level, the level it is
@@ -513,21 +513,25 @@ def method_comparison_section(fid_dir: Path, fidelity: str, config: dict) -> dic
     mdir = Path(fid_dir) / "method"
     summ = read_json(mdir / "summary.json") or {}
     runs = _read_csv(mdir / "runs.csv")
-    claims = _read_csv(mdir / "claims.csv")
-    done = sum(1 for r in _level_runs(config, other)
-               if (read_json(Path(fid_dir).parent / other / "cases" / r / "summary.json") or {}).get("status") == "completed")
+    claims = _read_csv(Path(fid_dir) / "claims.csv")  # the level's verdicts with both methods' seed-1 ones
+    done, _ = _runs_done(config, other, Path(fid_dir).parent)
     flows = [{"run": f["run"], "paper_pct": fmt(100 * f["paper"]), "accurate_pct": fmt(100 * f["accurate"])}
              for f in summ.get("flows", [])]
+    compared = (claims["same_under_both_methods"] != "not compared"
+                if claims is not None and "same_under_both_methods" in claims else None)
+    png = mdir / "method_comparison.png"
+    figure = os.path.relpath(png.resolve(), Path(out_dir).resolve()).replace(os.sep, "/") if png.is_file() else None
     return {"is_accurate": False, "level": other, "planned": summ.get("accurate_runs_planned", 0), "done": done,
+            "figure": figure,
             "pairs": summ.get("pairs", 0), "omega_compared": summ.get("omega_compared", 0),
             "omega_significant": summ.get("omega_significant", 0),
             "omega_median_pct": fmt(100 * float(summ.get("omega_median_abs_rel_diff", float("nan")))),
             "angle_compared": summ.get("angle_compared", 0), "angle_significant": summ.get("angle_significant", 0),
             "flows": flows, "claims_compared": summ.get("claims_compared", 0),
             "claims_changed": ", ".join(str(c) for c in summ.get("claims_changed", [])) or "none",
-            "claims": table_of(claims[claims["same"] != "not compared"], ["claim", "verdict", "verdict_paper_seed1",
-                                                                            "verdict_accurate_seed1", "same"])
-            if claims is not None and len(claims) and (claims["same"] != "not compared").any() else None,
+            "claims": table_of(claims[compared], ["claim", "verdict", "verdict_paper_method_seed1",
+                                                   "verdict_accurate_method_seed1", "same_under_both_methods"])
+            if compared is not None and compared.any() else None,
             "runs": table_of(runs, ["run", "observable", "paper", "paper_ci95", "accurate", "accurate_ci95", "rel_diff",
                                     "significant"]) if runs is not None and len(runs) else None}
 
@@ -547,20 +551,23 @@ def convergence_section(fid_dir: Path, fidelity: str, config: dict) -> dict | No
     vals, order = _read_csv(cdir / "values.csv"), _read_csv(cdir / "order.csv")
     info = []
     for lv in lvls:
-        runs = _level_runs(config, lv)
-        done = sum(1 for r in runs if (read_json(Path(fid_dir).parent / lv / "cases" / r / "summary.json") or {}).get("status")
-                   == "completed")
-        info.append({"level": lv, "dx": fmt(config["fidelities"][lv]["dx_mm"]), "done": done, "planned": len(runs)})
+        done, planned = _runs_done(config, lv, Path(fid_dir).parent)
+        info.append({"level": lv, "dx": fmt(config["fidelities"][lv]["dx_mm"]), "done": done, "planned": planned})
     return {"levels": info, "observed": summ.get("observed", 0), "compared": summ.get("compared", 0),
             "order_table": table_of(order, list(order.columns)) if order is not None and len(order) else None,
             "value_table": table_of(vals, ["case", "observable", "dx_mm", "value", "ci95", "n_seeds", "loop_s_per_sim_s", "flags"])
             if vals is not None and len(vals) else None}
 
 
-def _level_runs(config: dict, level: str) -> list[str]:
+def _runs_done(config: dict, level: str, results_dir: Path) -> tuple[int, int]:
+    """(completed, planned) runs of a level under ``results_dir``."""
     from .cases import level_runs
+    from .health import read_json
 
-    return level_runs(config, level)
+    runs = level_runs(config, level)
+    done = sum(1 for r in runs if (read_json(Path(results_dir) / level / "cases" / r / "summary.json") or {}).get("status")
+               == "completed")
+    return done, len(runs)
 
 
 def health_section(fid_dir: Path, config: dict) -> dict:
@@ -784,6 +791,16 @@ def _short_reason(reason: str) -> tuple[str, int]:
     return text, len(parts) - idx
 
 
+def _method_cell(r: dict) -> str:
+    """``same``, ``changes: <paper> -> <accurate>`` or ``not compared`` (seed-1 verdicts)."""
+    same = str(r.get("same_under_both_methods"))
+    if same == "yes":
+        return f"same ({r.get('verdict_paper_method_seed1')})"
+    if same == "no":
+        return f"changes: {r.get('verdict_paper_method_seed1')} -> {r.get('verdict_accurate_method_seed1')}"
+    return "not compared"
+
+
 def claims_summary(claims) -> list[dict]:
     """One row per claim: number, statement, verdict, the deciding number (the first clause of
     ``values``: the pooled difference or the single comparison) and the reason, shortened."""
@@ -795,7 +812,9 @@ def claims_summary(claims) -> list[dict]:
         rows.append({"claim": fmt(r["claim"]), "statement": str(r.get("statement", "")),
                      "verdict": str(r.get("verdict", "")),
                      "number": str(r.get("values", "")).split("; ")[0].split(" over ")[0],
-                     "reason": reason})
+                     "reason": reason,
+                     # the verdict under the accurate method (seed 1), where a level compares with this one
+                     "method": _method_cell(r) if "same_under_both_methods" in r else None})
     return rows
 
 
@@ -991,7 +1010,7 @@ def build_context(repo_root: Path, fid_dir: Path, fidelity: str, config: dict, o
         "study_level": study_level(config, fidelity),
         "health": health_ctx,
         "runtime": runtime_section(fid_dir, fidelity),
-        "method": method_comparison_section(fid_dir, fidelity, config),
+        "method": method_comparison_section(fid_dir, fidelity, config, out_dir),
         "convergence": convergence_section(fid_dir, fidelity, config),
         "missing": lambda rel: f"not built at this level: `{_rel_to(fid_dir, repo_root)}/{rel}` missing",
     }

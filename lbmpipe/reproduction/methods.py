@@ -11,8 +11,8 @@ value, and whether it exceeds the two intervals combined (independent runs: sqrt
 Observables: mean |Omega| about x, y, z (Figs. 4-7), the mean orientation angle (Figs. 8-9), and
 the flow profile's relative L2 distance from Poiseuille (Fig. 10; for the particle-free flows this is
 the wall treatment's own error). Per claim: the verdicts side by side, each evaluated from packing
-seed 1 of the accurate level's cases under both methods, beside the level's own verdict from all
-its packings and cases.
+seed 1 of the accurate level's cases under both methods; the level's ``claims.csv`` carries them
+beside its own verdict from all its packings and cases (``LEVEL_CLAIM_COLUMNS``).
 """
 
 from __future__ import annotations
@@ -31,8 +31,10 @@ from .health import read_json as _read
 ANGLE_KEY = {"cylinder": "cyl_axis_angle", "cube": "cube_projected_angle"}
 RUN_COLUMNS = ["run", "observable", "paper", "paper_ci95", "accurate", "accurate_ci95", "rel_diff", "rel_diff_ci95",
                "significant", "paper_flags", "accurate_flags"]
-CLAIM_COLUMNS = ["claim", "statement", "verdict", "verdict_paper_seed1", "verdict_accurate_seed1", "same",
-                 "reason_accurate"]
+CLAIM_COLUMNS = ["claim", "statement", "verdict_paper_seed1", "verdict_accurate_seed1", "same", "reason_accurate"]
+#: the columns the level's ``claims.csv`` takes from the comparison (``claims.write_claims``)
+LEVEL_CLAIM_COLUMNS = {"verdict_paper_seed1": "verdict_paper_method_seed1",
+                       "verdict_accurate_seed1": "verdict_accurate_method_seed1", "same": "same_under_both_methods"}
 
 
 def comparison_level(config: dict, level: str) -> str | None:
@@ -43,28 +45,40 @@ def comparison_level(config: dict, level: str) -> str | None:
     return None
 
 
-def observables(run_dir: Path) -> dict[str, tuple[float, float]] | None:
-    """(value, 95 % half-width) of each compared observable of one completed run; None if the
-    run is missing or did not complete. A particle-free run has only the profile's error."""
-    summary = _read(Path(run_dir) / "summary.json")
-    if summary is None or summary.get("status") != "completed":
-        return None
-    out = {"profile_error_rel_l2": (_f(summary.get("profile_error_rel_l2")), float("nan"))}
-    stats = _read(Path(run_dir) / "stats.json")
-    if stats is None:
-        return out
+def stats_values(stats: dict) -> dict[str, tuple[float, float]]:
+    """(value, 95 % half-width) of mean |Omega| about x, y, z (Figs. 4-7) and of the mean
+    orientation angle (Figs. 8-9) from a run's or a case's ``stats.json`` record; what the record
+    lacks is left out."""
+    out = {}
     mean, ci = stats.get("mean_abs_omega_rad_s") or {}, stats.get("ci95_rad_s") or {}
     for ax in "xyz":
-        out[f"mean_abs_omega_{ax}"] = (_f(mean.get(ax)), _f(ci.get(ax)))
+        if ax in mean:
+            out[f"mean_abs_omega_{ax}"] = (_f(mean[ax]), _f(ci.get(ax)))
     angle = (stats.get("orientation") or {}).get(ANGLE_KEY.get(stats.get("shape"), ""), {})
-    if angle:
-        out["mean_angle_deg"] = (_f(angle.get("mean_deg")), _f(angle.get("ci95_deg")))
+    if angle.get("mean_deg") is not None:
+        out["mean_angle_deg"] = (_f(angle["mean_deg"]), _f(angle.get("ci95_deg")))
     return out
 
 
-def _flags(run_dir: Path) -> str:
-    stats = _read(Path(run_dir) / "stats.json") or {}
-    return ";".join(stats.get("flags") or [])
+def completed_record(run_dir: Path) -> tuple[dict, dict] | None:
+    """The ``summary.json`` and ``stats.json`` records of a completed run or case (the latter
+    empty for a particle-free run); None if it is missing or did not complete."""
+    summary = _read(Path(run_dir) / "summary.json")
+    if summary is None or summary.get("status") != "completed":
+        return None
+    return summary, _read(Path(run_dir) / "stats.json") or {}
+
+
+def observables(run_dir: Path) -> tuple[dict[str, tuple[float, float]], str] | None:
+    """(value, 95 % half-width) of each compared observable of one completed run, and the run's
+    flags; None if the run is missing or did not complete. A particle-free run has only the
+    profile's error."""
+    record = completed_record(run_dir)
+    if record is None:
+        return None
+    summary, stats = record
+    out = {"profile_error_rel_l2": (_f(summary.get("profile_error_rel_l2")), float("nan")), **stats_values(stats)}
+    return out, ";".join(stats.get("flags") or [])
 
 
 def run_rows(config: dict, paper_level: str, accurate_level: str, root: Path = Path("results")) -> pd.DataFrame:
@@ -76,6 +90,7 @@ def run_rows(config: dict, paper_level: str, accurate_level: str, root: Path = P
         p, a = observables(pdir), observables(adir)
         if p is None or a is None:
             continue
+        (p, p_flags), (a, a_flags) = p, a
         for obs in [k for k in p if k in a]:
             (vp, cp), (va, ca) = p[obs], a[obs]
             both = math.hypot(cp, ca) if math.isfinite(cp) and math.isfinite(ca) else float("nan")
@@ -84,7 +99,7 @@ def run_rows(config: dict, paper_level: str, accurate_level: str, root: Path = P
                          "accurate_ci95": ca, "rel_diff": rel,
                          "rel_diff_ci95": both / abs(vp) if vp else float("nan"),
                          "significant": bool(abs(va - vp) > both) if math.isfinite(both) else None,
-                         "paper_flags": _flags(pdir), "accurate_flags": _flags(adir)})
+                         "paper_flags": p_flags, "accurate_flags": a_flags})
     return pd.DataFrame(rows, columns=RUN_COLUMNS)
 
 
@@ -117,17 +132,15 @@ def seed1_claims(config: dict, level: str, cases: list[str], root: Path, work: P
 SEED1_FILES = ("summary.json", "stats.json", "orientation.csv", "profile.csv", "flow_rate.csv", "particles_static.csv")
 
 
-def claim_rows(level_claims: pd.DataFrame, paper_seed1: pd.DataFrame, accurate_seed1: pd.DataFrame) -> pd.DataFrame:
-    """Each claim's verdict at the level (all packings, all cases) and under both methods from
-    the same packing and cases; ``same`` is ``yes``/``no``, or ``not compared`` where either
-    method lacks the claim's inputs."""
+def claim_rows(paper_seed1: pd.DataFrame, accurate_seed1: pd.DataFrame) -> pd.DataFrame:
+    """Each claim's verdict under both methods from the same packing and cases; ``same`` is
+    ``yes``/``no``, or ``not compared`` where either method lacks the claim's inputs."""
     rows = []
-    for _, r in level_claims.iterrows():
-        k = int(r["claim"])
-        p = paper_seed1[paper_seed1["claim"] == k].iloc[0]
+    for _, p in paper_seed1.iterrows():
+        k = int(p["claim"])
         a = accurate_seed1[accurate_seed1["claim"] == k].iloc[0]
         missing = any(str(x["reason"]).startswith("inputs missing") for x in (p, a))
-        rows.append({"claim": k, "statement": r["statement"], "verdict": r["verdict"],
+        rows.append({"claim": k, "statement": p["statement"],
                      "verdict_paper_seed1": p["verdict"], "verdict_accurate_seed1": a["verdict"],
                      "same": "not compared" if missing else ("yes" if p["verdict"] == a["verdict"] else "no"),
                      "reason_accurate": str(a["reason"])})
@@ -156,9 +169,10 @@ def summary(runs: pd.DataFrame, claims: pd.DataFrame) -> dict:
 
 
 def write(config: dict, paper_level: str, root: Path, out_dir: Path) -> dict:
-    """Write ``runs.csv``, ``claims.csv`` and ``summary.json`` of the comparison of
-    ``paper_level`` with its accurate-method level into ``out_dir`` (empty tables when the
-    config has no such level or none of its runs is done)."""
+    """Write ``runs.csv``, ``claims.csv``, ``summary.json`` and the figure
+    ``method_comparison.png``/``.pdf`` of the comparison of ``paper_level`` with its accurate-method
+    level into ``out_dir`` (empty tables when the config has no such level or none of its runs is
+    done)."""
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     import tempfile
@@ -167,16 +181,19 @@ def write(config: dict, paper_level: str, root: Path, out_dir: Path) -> dict:
 
     acc = comparison_level(config, paper_level)
     runs = run_rows(config, paper_level, acc, root) if acc else pd.DataFrame(columns=RUN_COLUMNS)
-    level_claims = pd.read_csv(Path(root) / paper_level / "claims.csv")
     if acc:
         with tempfile.TemporaryDirectory() as work:
             subset = level_cases(config, acc)
-            claims = claim_rows(level_claims, seed1_claims(config, paper_level, subset, root, work),
+            claims = claim_rows(seed1_claims(config, paper_level, subset, root, work),
                                 seed1_claims(config, acc, subset, root, work))
     else:
         claims = pd.DataFrame(columns=CLAIM_COLUMNS)
     runs.to_csv(out_dir / "runs.csv", index=False, float_format="%.6g")
     claims.to_csv(out_dir / "claims.csv", index=False)
+    from .figures import method_comparison
+
+    method_comparison(runs, claims, out_dir / "method_comparison",
+                      title=f"What the method changes: level {paper_level} (paper) against {acc or 'no accurate level'}")
     s = {"paper_level": paper_level, "accurate_level": acc,
          "accurate_runs_planned": len(level_runs(config, acc)) if acc else 0, **summary(runs, claims)}
     (out_dir / "summary.json").write_text(json.dumps(s, indent=2, allow_nan=True) + "\n")

@@ -44,13 +44,15 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from .study import D3Q15_LINKS_PER_AREA, links_per_area, read_benchmark, scene_particle_load
+
 #: effect-name prefixes of each group of the step (``solver`` names its effects this way)
 GROUPS = {"fluid": ("stream+collide", "wall", "flow-rate"), "particles": ("particles",), "collisions": ("collisions",)}
 #: the work each group is charged to, and the model's coefficient for it
 WORK = {"fluid": ("nodes", "s_per_node_update"), "particles": ("links", "s_per_link_update"),
         "collisions": ("particles", "s_per_particle_step")}
 COLUMNS = ["run", "family", "steps", "threads", "nodes", "links", "particles", "wall_s", "loop_s", "fluid_s",
-           "particles_s", "collisions_s", "rest_s", "overhead_s", "resumed", "cpu_share"]
+           "particles_s", "collisions_s", "rest_s", "overhead_s", "resumed", "cpu_share", "links_per_area_lu"]
 
 
 def family(run: str) -> str:
@@ -77,17 +79,7 @@ def run_row(run: str, summary: dict, bench_s: float = float("nan")) -> dict | No
             "links": int(part.get("links") or 0), "particles": int(part.get("count") or 0),
             "wall_s": wall, "loop_s": loop, **{f"{g}_s": v for g, v in groups.items()},
             "rest_s": max(loop - sum(groups.values()), 0.0), "overhead_s": max(wall - loop, 0.0),
-            "resumed": bool(resumed), "cpu_share": float("nan")}
-
-
-def _bench(path: Path) -> tuple[float, float]:
-    """(wall seconds, CPU seconds) of a Snakemake benchmark file; NaN where absent."""
-    try:
-        df = pd.read_csv(path, sep="\t")
-    except (OSError, ValueError, pd.errors.EmptyDataError):
-        return float("nan"), float("nan")
-    return tuple(float(pd.to_numeric(df[k], errors="coerce").mean()) if k in df else float("nan")
-                 for k in ("s", "cpu_time"))
+            "resumed": bool(resumed), "cpu_share": float("nan"), "links_per_area_lu": float("nan")}
 
 
 def level_rows(level_dir: Path, runs: list[str]) -> pd.DataFrame:
@@ -100,9 +92,13 @@ def level_rows(level_dir: Path, runs: list[str]) -> pd.DataFrame:
             summary = json.loads(path.read_text())
         except (OSError, ValueError):
             continue
-        wall, cpu = _bench(Path(level_dir) / "benchmarks" / f"{run}.simulate.tsv")
+        bench = read_benchmark(Path(level_dir) / "benchmarks" / f"{run}.simulate.tsv")
+        wall, cpu = bench["s"], bench["cpu_time"]
         row = run_row(run, summary, wall)
         if row is not None:
+            # boundary links per unit particle area: how predict_scene estimates a new scene's links
+            row["links_per_area_lu"] = (links_per_area(summary, path.parent / "particles_static.csv")
+                                        if row["links"] > 0 else float("nan"))
             # the share of a core per thread the run got (other runs and jobs on the host take the
             # rest): what the wall time depends on beyond the work
             row["cpu_share"] = cpu / (wall * row["threads"]) if not row["resumed"] and wall > 0 else float("nan")
@@ -194,7 +190,9 @@ def build(level_dir: Path, runs: list[str], level: str) -> tuple[dict, pd.DataFr
         "median_abs_rel_error_median_share": float(err_med.median()) if len(err_med) else float("nan"),
         "max_abs_rel_error_median_share": float(err_med.max()) if len(err_med) else float("nan"),
         "threads_measured": sorted(int(t) for t in rows["threads"].unique()) if len(rows) else [],
-        "links_per_area_lu": links_per_area_lu(level_dir, rows),
+        # the median measured boundary links per particle surface area over the runs with particles
+        "links_per_area_lu": float(rows["links_per_area_lu"].median()) if rows["links_per_area_lu"].notna().any()
+        else float("nan"),
     })
     return model, val
 
@@ -208,28 +206,11 @@ def write(level_dir: Path, runs: list[str], level: str, model_path: Path, table_
     return model
 
 
-def links_per_area_lu(level_dir: Path, rows: pd.DataFrame) -> float:
-    """Median measured boundary links per particle surface area (lattice units) over the runs
-    with particles (``study.links_per_area`` of each run)."""
-    from .study import links_per_area
-
-    vals = []
-    for run in rows.loc[rows["links"] > 0, "run"] if len(rows) else []:
-        d = Path(level_dir) / "cases" / run
-        summary = json.loads((d / "summary.json").read_text())
-        v = links_per_area(summary, d / "particles_static.csv")
-        if math.isfinite(v):
-            vals.append(v)
-    return float(np.median(vals)) if vals else float("nan")
-
-
 def predict_scene(model: dict, scene, params, share: float = 1.0) -> float:
     """Predicted wall seconds of a validated ``Scene`` with lattice parameters ``params``, with
     ``share`` of a core per thread: the particles' links estimated from their surface area
     (``links_per_area_lu`` of the model), their count as the packer or random placement would
     make it."""
-    from .study import D3Q15_LINKS_PER_AREA, scene_particle_load
-
     count, area_mm2 = scene_particle_load(scene)
     lpa = model.get("links_per_area_lu")
     lpa = float(lpa) if lpa is not None and math.isfinite(float(lpa)) else D3Q15_LINKS_PER_AREA

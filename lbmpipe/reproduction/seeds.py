@@ -36,16 +36,12 @@ AXES = ("x", "y", "z")
 _NAN = float("nan")
 
 
-def _finite(v) -> bool:
-    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
-
-
 def combine_means(means, ci95s, dofs=None) -> dict:
     """:func:`lbmpipe.reproduction.steady.combine_seeds` on per-seed values that may be missing
     (``None``): a seed without a mean is left out; one without an interval or its degrees of
     freedom leaves only the between-seed interval."""
     dofs = list(dofs) if dofs is not None else [None] * len(means)
-    num = [[_NAN if not _finite(v) else float(v) for v in col] for col in (means, ci95s, dofs)]
+    num = [[_NAN if not H.finite(v) else float(v) for v in col] for col in (means, ci95s, dofs)]
     return steady.combine_seeds(*num)
 
 
@@ -54,7 +50,7 @@ def seeds_needed(spread_rel: float | None, target_rel: float, confidence: float 
     means scatter by ``spread_rel`` (relative standard deviation): the least ``n >= 2`` with
     ``t_{n-1} spread_rel / sqrt(n) <= target_rel`` (the between-seed interval alone, the floor
     that longer runs cannot lower); None without a measured spread."""
-    if spread_rel is None or not _finite(spread_rel):
+    if spread_rel is None or not H.finite(spread_rel):
         return None
     from scipy import stats as sps
 
@@ -82,7 +78,7 @@ def combine_stats(case: str, per_seed: list[tuple[int, dict]]) -> dict:
     out["n_particles"] = int(np.mean([s.get("n_particles") or 0 for _, s in done])) if done else int(
         first.get("n_particles") or 0)
     out["samples"] = int(sum(int(s.get("samples") or 0) for _, s in done))
-    spins = [float(s["spinup_s"]) for _, s in done if _finite(s.get("spinup_s"))]
+    spins = [float(s["spinup_s"]) for _, s in done if H.finite(s.get("spinup_s"))]
     out["spinup_s"] = max(spins) if spins else None
 
     omega, ci, intervals, spread = {}, {}, {}, {}
@@ -91,7 +87,7 @@ def combine_stats(case: str, per_seed: list[tuple[int, dict]]) -> dict:
         means = [(s.get("mean_abs_omega_rad_s") or {}).get(a) for _, s in done]
         c = combine_means(means, [(s.get("ci95_rad_s") or {}).get(a) for _, s in done], [r.get("dof") for r in iv])
         omega[a], ci[a] = c["mean"], c["ci95"]
-        vals = [float(v) for v in means if _finite(v)]
+        vals = [float(v) for v in means if H.finite(v)]
         spread[a] = (float(np.std(vals, ddof=1) / abs(np.mean(vals))) if len(vals) >= 2 and np.mean(vals) else None)
         insufficient = [k for (k, _), r in zip(done, iv) if not r.get("sufficient")]
         # two or more independent packings give a valid interval whatever the correlation within
@@ -107,7 +103,7 @@ def combine_stats(case: str, per_seed: list[tuple[int, dict]]) -> dict:
     out["omega_intervals"], out["seed_spread_rel"] = intervals, spread
     out["seeds_for_5pct"] = {a: seeds_needed(spread[a], 0.05) for a in AXES}
     out["tau_int_s"] = {a: max((float((s.get("tau_int_s") or {}).get(a)) for _, s in done
-                                if _finite((s.get("tau_int_s") or {}).get(a))), default=None) for a in AXES}
+                                if H.finite((s.get("tau_int_s") or {}).get(a))), default=None) for a in AXES}
 
     kinds = sorted({kind for _, s in done for kind in (s.get("orientation") or {})})
     orient = {}
@@ -115,12 +111,12 @@ def combine_stats(case: str, per_seed: list[tuple[int, dict]]) -> dict:
         rows = [((s.get("orientation") or {}).get(kind) or {}) for _, s in done]
         c = combine_means([r.get("mean_deg") for r in rows], [r.get("ci95_deg") for r in rows],
                           [(r.get("interval") or {}).get("dof") for r in rows])
-        med = [float(r["median_deg"]) for r in rows if _finite(r.get("median_deg"))]
+        med = [float(r["median_deg"]) for r in rows if H.finite(r.get("median_deg"))]
         orient[kind] = {"mean_deg": c["mean"], "ci95_deg": c["ci95"], "median_deg": float(np.mean(med)) if med else None,
                         "interval": c}
     out["orientation"] = orient
     taus = [float((s.get("orientation_memory") or {}).get("tau_orient_s")) for _, s in done
-            if _finite((s.get("orientation_memory") or {}).get("tau_orient_s"))]
+            if H.finite((s.get("orientation_memory") or {}).get("tau_orient_s"))]
     out["orientation_memory"] = {"tau_orient_s": max(taus) if taus else None}
     order = [(s.get("orientation_order") or {}) for _, s in done]
     out["orientation_order"] = combine_means([o.get("mean") for o in order], [o.get("ci95") for o in order],
@@ -140,12 +136,12 @@ def _worst_diagnostics(done: list[tuple[int, dict]]) -> dict:
     """Frozen, locked, health and spin-up of a case as its worst seed's, naming the seeds."""
     fr = [(k, s.get("frozen") or {}) for k, s in done]
     frozen_seeds = [k for k, f in fr if f.get("frozen")]
-    rem = [float(f["remaining"]) for _, f in fr if _finite(f.get("remaining"))]
+    rem = [float(f["remaining"]) for _, f in fr if H.finite(f.get("remaining"))]
     frozen = {"frozen": bool(frozen_seeds), "seeds": frozen_seeds, "remaining": max(rem) if rem else None,
               "threshold": next((f.get("threshold") for _, f in fr if f.get("threshold") is not None), None)}
     lk = [(k, s.get("locked") or {}) for k, s in done]
     locked_seeds = [k for k, d in lk if d.get("locked")]
-    kept = [float(d["neighbours_retained"]) for _, d in lk if _finite(d.get("neighbours_retained"))]
+    kept = [float(d["neighbours_retained"]) for _, d in lk if H.finite(d.get("neighbours_retained"))]
     locked = {"locked": bool(locked_seeds), "seeds": locked_seeds, "column": any(d.get("column") for _, d in lk),
               "neighbours_retained": max(kept) if kept else None}
     issues, numbers = [], {}
@@ -153,14 +149,14 @@ def _worst_diagnostics(done: list[tuple[int, dict]]) -> dict:
         h = s.get("health") or {}
         issues += [f"seed {k}: {i}" for i in h.get("issues") or []]
         for key, v in h.items():
-            if _finite(v):
+            if H.finite(v):
                 numbers[key] = max(numbers.get(key, float(v)), float(v))  # magnitudes: the worst seed's
     health = {**numbers, "issues": issues, "healthy": not issues}
     sp = [(k, s.get("spinup") or {}) for k, s in done]
     unsteady = [k for k, d in sp if d and not d.get("steady", True)]
     spinup = {"steady": not unsteady, "seeds_not_steady": unsteady,
-              "spinup_s": max((float(d["spinup_s"]) for _, d in sp if _finite(d.get("spinup_s"))), default=None),
-              "required_s": max((float(d["required_s"]) for _, d in sp if _finite(d.get("required_s"))), default=None),
+              "spinup_s": max((float(d["spinup_s"]) for _, d in sp if H.finite(d.get("spinup_s"))), default=None),
+              "required_s": max((float(d["required_s"]) for _, d in sp if H.finite(d.get("required_s"))), default=None),
               "message": "; ".join(f"seed {k}: {d.get('message')}" for k, d in sp if k in unsteady and d.get("message"))}
     return {"frozen": frozen, "locked": locked, "health": health, "spinup": spinup}
 

@@ -46,6 +46,7 @@ import pandas as pd
 from scipy import stats as _st
 
 from . import health as H
+from .health import _num
 from .steady import (locking_diagnostics, mean_interval, orientation_memory, orientation_order, rotation_matrices,
                      spinup_end, viscous_time_s)
 
@@ -525,10 +526,6 @@ def write_last_frame(case_dir: Path) -> Path:
 
 # ----------------------------------------------------------------------------------------------
 # aggregated tables
-
-def _num(v) -> float:
-    return _NAN if v is None else float(v)
-
 
 def _case_stats(case: str, case_dir: Path, case_cfg: dict) -> dict:
     """stats.json of a case, computed on the fly if it was not written."""

@@ -8,6 +8,8 @@ rule claims:
     input:
         tables=expand("results/{{fidelity}}/tables/{table}.csv", table=TABLES),
         profiles=expand("results/{{fidelity}}/cases/{case}/profile.csv", case=ACTIVE_CASES),
+        # each verdict under the accurate method too, where a level compares with this one
+        method=lambda w: ([f"results/{w.fidelity}/method/claims.csv"] if comparison_level(config, w.fidelity) else []),
     output:
         report("results/{fidelity}/claims.csv", caption="../report/claims.rst", category="Claims"),
     log:
@@ -17,12 +19,12 @@ rule claims:
 
 
 def _method_inputs(wildcards):
-    # the accurate-method level's claims and the runs of both levels it pairs, where present: the
-    # comparison reads what exists (a level's production is finished in parts)
+    # the runs of both levels the comparison pairs, where present: it reads what exists (a level's
+    # production is finished in parts) and evaluates the claims of both methods itself
     other = comparison_level(config, wildcards.fidelity)
     if other is None:
         return []
-    files = [f for f in [f"results/{other}/claims.csv"] if Path(f).exists()]
+    files = []
     for run in level_runs(config, other):
         for lvl in (other, wildcards.fidelity):
             files += [ancient(f) for f in (f"results/{lvl}/cases/{run}/summary.json", f"results/{lvl}/cases/{run}/stats.json")
@@ -36,12 +38,13 @@ rule method_comparison:
     and each claim's verdict under both (results/<level>/method/)."""
     localrule: True
     input:
-        claims="results/{fidelity}/claims.csv",
         other=_method_inputs,
     output:
         runs="results/{fidelity}/method/runs.csv",
         claims="results/{fidelity}/method/claims.csv",
         summary="results/{fidelity}/method/summary.json",
+        figure="results/{fidelity}/method/method_comparison.png",
+        figure_pdf="results/{fidelity}/method/method_comparison.pdf",
     log:
         "results/{fidelity}/logs/method_comparison.log",
     run:

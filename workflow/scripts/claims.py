@@ -4,4 +4,5 @@ from pathlib import Path
 from lbmpipe.reproduction.claims import write_claims
 
 sys.stderr = open(snakemake.log[0], "w")
-write_claims(Path(snakemake.output[0]).parent, snakemake.config["cases"])
+method = snakemake.input.get("method")
+write_claims(Path(snakemake.output[0]).parent, snakemake.config["cases"], Path(method[0]) if method else None)
