@@ -2,6 +2,7 @@
 step charged to its own work, validated with every case family held out of its own fit."""
 
 import json
+from pathlib import Path
 
 import numpy as np
 import pandas as pd
@@ -149,3 +150,23 @@ def test_a_run_slowed_by_other_jobs_is_predicted_from_its_share_of_a_core(tmp_pa
     slow = val[val["run"].str.startswith("cube8")]
     assert float(slow["cpu_share"].iloc[0]) == pytest.approx(0.5)
     assert float(slow["rel_error_median_share"].iloc[0]) == pytest.approx(-0.5)
+
+
+def test_a_cluster_time_limit_follows_the_wall_time_model_and_never_falls_below_the_node_estimate(tmp_path):
+    import yaml
+
+    from lbmpipe.reproduction import cases
+
+    root = tmp_path
+    config = yaml.safe_load((Path(__file__).resolve().parents[1] / "config.yaml").read_text())
+    without = cases.estimate_minutes(config, "credible", "cyl16x16_c30_re26/seed1", root)
+    model = {"n_runs": 5, "intercept_s": 10.0, "s_per_step": 1e-3, "s_per_node_update": 2e-7,
+             "s_per_link_update": 1e-7, "s_per_particle_step": 1e-5, "links_per_area_lu": 5.0}
+    path = root / "results" / "credible" / "tables" / "cost_model.json"
+    path.parent.mkdir(parents=True)
+    path.write_text(json.dumps(model))
+    slow = cases.estimate_minutes(config, "credible", "cyl16x16_c30_re26/seed1", root)
+    # 120000 steps of ~2e5 nodes at 2e-7 s a node update: over 80 minutes, times the margin
+    assert slow > without and slow >= 1.5 * 80
+    path.write_text(json.dumps({**model, **{k: 0.0 for k in model if k.startswith("s_per")}, "intercept_s": 0.0}))
+    assert cases.estimate_minutes(config, "credible", "cyl16x16_c30_re26/seed1", root) == without

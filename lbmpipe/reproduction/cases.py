@@ -207,24 +207,55 @@ def write_unpackable(case_dir: Path, case_name: str, packing_info: dict) -> None
     (case_dir / "flow_rate.csv").write_text("t_s,q_m3_s,force_density_N_m3,max_density_deviation,core_velocity_ratio\n")
 
 
-def estimate_minutes(config: dict, fidelity_name: str, case_name: str) -> int:
-    """Wall-time estimate of one case (``lbmpipe.cost``, with a factor for particle work), in
-    whole minutes, for the cluster profile's ``runtime`` resource."""
+def estimate_minutes(config: dict, fidelity_name: str, case_name: str, root: Path = Path(".")) -> int:
+    """Wall-time estimate of one case in whole minutes, for the cluster profile's ``runtime``
+    resource (its time limit) and the jobs' priorities: the wall-time model of the production runs
+    (``lbmpipe.reproduction.runcost``, the first of ``WALL_MODELS`` under ``root``) at a core of the
+    case's own, times ``TIME_LIMIT_MARGIN``; never less than the node-count estimate
+    (``lbmpipe.cost``, with a factor for particle work), which is all there is before any run."""
     from ..units import derive
 
     fid = config["fidelities"][fidelity_name]
     case_name, case = run_case(config, case_name)
     data = case_scene(case_name, case, fidelity_name, fid)
-    data.pop("particles", None)
-    params = derive(Scene.model_validate(data))
+    fluid_only = copy.deepcopy(data)
+    fluid_only.pop("particles", None)
+    params = derive(Scene.model_validate(fluid_only))
     part = case.get("particles")
     factor = 1.0 if part is None else PARTICLE_COST_FACTOR[part["concentration"] > 0.4]
-    return max(1, int(2 * factor * params.estimated_seconds / 60.0) + 1)
+    minutes = max(1, int(2 * factor * params.estimated_seconds / 60.0) + 1)
+    model = wall_model(fidelity_name, root)
+    if model is not None:
+        from .runcost import predict_scene
+
+        scene = Scene.model_validate(data)
+        seconds = predict_scene(model, scene, derive(scene), 1.0)
+        minutes = max(minutes, int(TIME_LIMIT_MARGIN * seconds / 60.0) + 1)
+    return minutes
 
 
 #: whole step with particles relative to the particle-free step, at 30 % and at 50 % (the paper
 #: level's measured steps: benchmarks/README.md; collisions dominate the dense cases).
 PARTICLE_COST_FACTOR = (8.0, 20.0)
+#: the wall-time models a level's time limits come from, its own first (``tables/cost_model.json``
+#: of ``lbmpipe.reproduction.runcost``; the coefficients are the host's, not the level's)
+WALL_MODELS = ("results/{level}/tables/cost_model.json", "results/credible/tables/cost_model.json",
+               "results/paper/tables/cost_model.json")
+#: a time limit over the model's prediction: its largest error on runs it was not fitted to, given
+#: the run's share of a core, is 12 % (credible level), and a cluster node is shared too
+TIME_LIMIT_MARGIN = 1.5
+
+
+def wall_model(level: str, root: Path = Path(".")) -> dict | None:
+    """The first fitted model of ``WALL_MODELS`` under ``root`` (None if none is there)."""
+    for pattern in WALL_MODELS:
+        try:
+            model = json.loads((Path(root) / pattern.format(level=level)).read_text())
+        except (OSError, ValueError):
+            continue
+        if int(model.get("n_runs", 0)) > 0:
+            return model
+    return None
 
 
 def write_case_scene(config: dict, fidelity_name: str, case_name: str, path: Path,
