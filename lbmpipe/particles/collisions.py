@@ -60,10 +60,9 @@ When is a contact treated (``CollisionParams``):
 - touching and turning (with ``speculative``): a touching contact whose bodies turn by more than
   half of its gap plus half the overlap bound at their bounding radii within the step gets a twin that takes
   the speculative test above: the contact point holds only where it is, and a spinning cube's
-  corner beside a face contact closes the gap elsewhere. A pair that overlaps already (by up to
-  ``overlap_tol``) is tested lifted apart along its present normal to ``_TOI_TOL`` from touching
-  (a wall: for a gap below the present one); else the test finds the overlap at t = 0 and
-  returns the present contact, blind to the corner;
+  corner beside a face contact closes the gap elsewhere (a pair that overlaps already, by up to
+  ``overlap_tol``, finds that overlap at t = 0 and gets its present contact: a jam's turning corner
+  is then caught by the lock of point 3 below);
 - with several contacts the impulses are applied contact by contact (Gauss-Seidel) in repeated
   sweeps until none approaches; as impulses change velocities, the speculative tests are then
   repeated (a body knocked into a third one within the step) until a round applies no impulse
@@ -521,7 +520,7 @@ def _advance_one(i, t, x, v, wb, Rm, xo, Ro):
 # was 55 % of the collision step of 244 dense 8 mm cylinders (relative point speeds ~0.02 per
 # step: 5 halvings reach the tolerance).
 _TOI_TOL = 1.0e-3
-_VTOL_FLOOR = 1.0e-15
+_VTOL_FLOOR = 1.0e-30
 _TOI_MAX_HALVINGS = 12
 
 
@@ -612,20 +611,18 @@ def _wall_closing(i, v, sweep, dcode, wn):
 
 
 @njit(cache=True)
-def _toi_wall(i, kind, h, x, v, wb, Rm, dt, sweep, dcode, Rp, cx, cy, lo, hi, wn, thr, manifold_tol, nrm, c, out_c,
-              x1, R1):
-    """As _toi_pair for body i and the wall identified by its normal wn, the body "overlapping"
-    when its gap is below ``thr`` (0; a body overlapping now: its present gap less _TOI_TOL)
-    (x1, R1: scratch)."""
+def _toi_wall(i, kind, h, x, v, wb, Rm, dt, sweep, dcode, Rp, cx, cy, lo, hi, wn, manifold_tol, nrm, c, out_c, x1,
+              R1):
+    """As _toi_pair for body i and the wall identified by its normal wn (x1, R1: scratch)."""
     _advance_one(i, dt, x, v, wb, Rm, x1, R1)
-    if _wall_gap(kind[i], h[i], x1, R1, dcode, Rp, cx, cy, lo, hi, wn, manifold_tol, nrm, c) >= thr:
+    if _wall_gap(kind[i], h[i], x1, R1, dcode, Rp, cx, cy, lo, hi, wn, manifold_tol, nrm, c) >= 0.0:
         return False
     lo_t = 0.0
     hi_t = dt
     for _it in range(_toi_halvings(_wall_closing(i, v, sweep, dcode, wn) * dt)):
         mid = 0.5 * (lo_t + hi_t)
         _advance_one(i, mid, x, v, wb, Rm, x1, R1)
-        if _wall_gap(kind[i], h[i], x1, R1, dcode, Rp, cx, cy, lo, hi, wn, manifold_tol, nrm, c) < thr:
+        if _wall_gap(kind[i], h[i], x1, R1, dcode, Rp, cx, cy, lo, hi, wn, manifold_tol, nrm, c) < 0.0:
             hi_t = mid
         else:
             lo_t = mid
@@ -850,9 +847,9 @@ def _apart_after(i, j, sh, axis, kind, h, x, v, wb, Rm, dt, x1, x2, R1, R2):
 @njit(cache=True)
 def _test_scratch():
     """Scratch of ``_activate_one``: the contact scratch (``new_scratch``), then its own arrays
-    (normal, point, the two bodies' trial centres and rotations, the lifted shift), in one buffer: each array passed
+    (normal, point, the two bodies' trial centres and rotations), in one buffer: each array passed
     to a function costs a reference count."""
-    return new_scratch(33)
+    return new_scratch(30)
 
 
 @njit(cache=True, inline="always")
@@ -860,7 +857,7 @@ def _test_arrays(scr):
     # the arrays of _activate_one in the buffer of _test_scratch
     o = WS_SIZE
     return (scr[o:o + 3], scr[o + 3:o + 6], scr[o + 6:o + 9], scr[o + 9:o + 12], ws_rows(scr, o + 12, 3, 3),
-            ws_rows(scr, o + 21, 3, 3), scr[o + 30:o + 33])
+            ws_rows(scr, o + 21, 3, 3))
 
 
 @njit(cache=True)
@@ -877,17 +874,10 @@ def _activate_one(m, pi, pj, ps, cg, cn, cc, wi, wg, wn, wc, npair, kind, h, x, 
         j = pj[m]
         if cg[m] - (sweep[i] + sweep[j]) * dt > _SWEEP_SLACK:
             return
-        pnrm, pc, x1, x2, R1, R2, sh = _test_arrays(scr)
-        # a pair overlapping now (by up to overlap_tol: a touching contact's twin) is tested lifted
-        # apart along its present normal to _TOI_TOL from touching: otherwise it overlaps from
-        # t = 0, the bisection returns t = 0 and the present contact, and a corner turning deeper
-        # into the other body is never seen (a jammed row of spinning cubes: 0.17 lu after a drift)
-        lift = -cg[m] + _TOI_TOL if cg[m] < 0.0 else 0.0
-        for k in range(3):
-            sh[k] = ps[m, k] + lift * cn[m, k]
-        if _apart_after(i, j, sh, cn[m], kind, h, x, v, wb, Rm, dt, x1, x2, R1, R2):
+        pnrm, pc, x1, x2, R1, R2 = _test_arrays(scr)
+        if _apart_after(i, j, ps[m], cn[m], kind, h, x, v, wb, Rm, dt, x1, x2, R1, R2):
             return
-        if _toi_pair(i, j, sh, kind, h, x, v, wb, Rm, dt, sweep, manifold_tol, pnrm, pc, gp_c[m], gp_c2[m], scr, x1,
+        if _toi_pair(i, j, ps[m], kind, h, x, v, wb, Rm, dt, sweep, manifold_tol, pnrm, pc, gp_c[m], gp_c2[m], scr, x1,
                      x2, R1, R2):
             on_p[m] = True
             for k in range(3):
@@ -897,11 +887,9 @@ def _activate_one(m, pi, pj, ps, cg, cn, cc, wi, wg, wn, wc, npair, kind, h, x, 
         i = wi[m]
         if wg[m] - _wall_closing(i, v, sweep, dcode, wn[m]) * dt > _SWEEP_SLACK:
             return
-        pnrm, pc, x1, x2, R1, R2, sh = _test_arrays(scr)
-        # overlapping now: the test looks for a deeper overlap than the present one (as pairs above)
-        thr = wg[m] - _TOI_TOL if wg[m] < 0.0 else 0.0
-        if _toi_wall(i, kind, h, x, v, wb, Rm, dt, sweep, dcode, Rp, cx, cy, lo, hi, wn[m], thr, manifold_tol, pnrm, pc,
-                     gw_c[m], x1, R1):
+        pnrm, pc, x1, x2, R1, R2 = _test_arrays(scr)
+        if _toi_wall(i, kind, h, x, v, wb, Rm, dt, sweep, dcode, Rp, cx, cy, lo, hi, wn[m], manifold_tol, pnrm, pc, gw_c[m],
+                     x1, R1):
             on_w[m] = True
             for k in range(3):
                 gw_n[m, k] = pnrm[k]
@@ -1406,8 +1394,8 @@ def _resolve_kernel(
             if on_w[m]:
                 i = wi[m]
                 _wall_terms(i, gw_c, gw_n, m, x, Rm, im[i], iinv, gt_w, m)
-        # approaches slower than this are round-off; the floor (1e-15 lattice units a step: 1e-9 lu
-        # in 10^6 steps) keeps bodies at rest (a jam locked by _lock_jams) from sweeping to the cap
+        # approaches slower than this are round-off; the floor keeps bodies at rest (a jam locked by
+        # _lock_jams, left with ~1e-24 lattice units a step) from sweeping to the cap every step
         vtol = max(1e-12 * vmax, _VTOL_FLOOR)
         nimp = 0
         sweeps = 0
