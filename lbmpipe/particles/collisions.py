@@ -1203,6 +1203,8 @@ def _lock_jams(jam, grounded, pi, pj, ps, x, v, wb, Rm, mass, inertia, fixed):
         if stop:
             for t in range(nm):
                 b = members[t]
+                if fixed[b]:
+                    continue  # its motion is prescribed
                 for k in range(3):
                     v[b, k] = 0.0
                     wb[b, k] = 0.0
@@ -1587,7 +1589,9 @@ def _resolve_kernel(
                 for t in range(2 * nc):
                     ev1[t] = -1
                 for sweep_ in range(max_sweeps):
-                    if _gs_sweep(act, nact, ci, cj, gn, gt, v, wb, wl, Rm, im, 0.0, vtol, ver, ev1, ev2, vrest) == 0:
+                    applied = _gs_sweep(act, nact, ci, cj, gn, gt, v, wb, wl, Rm, im, 0.0, vtol, ver, ev1, ev2, vrest)
+                    nimp += applied
+                    if applied == 0:
                         break
         stats[_S_IMP] += nimp
         stats[_S_SWEEP] = max(stats[_S_SWEEP], sweeps)
