@@ -111,9 +111,9 @@ lattice spacing). Every source of overlap, with what holds it:
    contacts (a row of cubes spinning at 0.09 rad a step jammed in a channel, and a dense box at
    ``contact_gap`` 1.0, turned 0.17-0.22 lu into each other without it; the box blew up). The
    paper's suspensions leave none unresolved at dx = 1 mm. At dx = 2 mm the dense 8 x 16 mm
-   cylinders do (240-616 contacts in 4,000 steps), and there the overlap before a call reaches
-   0.12-0.13 lu with the lock or without it: a fluid-coupled jam that the bound does not hold
-   (``stats["max_overlap_before"]`` reports it; without the sweeps after the lock, 0.27-0.29 lu);
+   cylinders do (51-362 contacts in 4,000 steps), and there the overlap before a call reaches
+   0.10-0.13 lu (0.09-0.12 without the lock): a fluid-coupled jam that the bound does not hold
+   (``stats["max_overlap_before"]`` reports it; without the sweeps after the lock, 0.29 lu);
 4. motion the prediction does not see: the next step's force and torque kicks (the call comes
    after the velocity update, so only the drift's own change of the rotation axis of
    non-symmetric bodies is left within a step) and the projection's pushes into contacts it has

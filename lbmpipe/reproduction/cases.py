@@ -242,7 +242,8 @@ PARTICLE_COST_FACTOR = (8.0, 20.0)
 WALL_MODELS = ("results/{level}/tables/cost_model.json", "results/credible/tables/cost_model.json",
                "results/paper/tables/cost_model.json")
 #: a time limit over the model's prediction: its largest error on runs it was not fitted to, given
-#: the run's share of a core, is 12 % (credible level), and a cluster node is shared too
+#: the run's share of a core, stays under 20 % (``max_abs_rel_error`` of the credible level's
+#: model), and a cluster node is shared too
 TIME_LIMIT_MARGIN = 1.5
 
 
