@@ -258,3 +258,15 @@ def test_committed_document_anchors_each_claim_once_and_shows_one_snapshot_galle
 def test_word_count_leaves_out_link_targets_and_table_rules():
     assert literate.word_count("| a | b |\n| --- | --- |\n[two words](../x.py#L3 \"Eq. 3: f\")") == 4
     assert literate.main_text("intro\n## Appendix A: x\nmore") == "intro\n"
+
+
+def test_the_document_of_an_accurate_method_level_builds_and_names_the_level_it_is_compared_with(tmp_path, config):
+    # `snakemake --config fidelity=credible_accurate` builds this level's own document too
+    fid_dir = tmp_path / "results" / "credible_accurate"
+    fid_dir.mkdir(parents=True)
+    out = literate.build_document(REPO, fid_dir, "credible_accurate", config, fid_dir / "reproduction.md")
+    text = out.read_text()
+    paper_level = config["fidelities"]["credible_accurate"]["compare_with"]
+    assert "## What the method changes" in text and f"`results/{paper_level}/method/`" in text
+    assert "### The paired runs of the method comparison" not in text
+    assert literate.check_links(out, REPO) == []

@@ -191,3 +191,31 @@ def test_packings_needed_for_a_5_percent_interval_follow_from_the_seeds_scatter(
     assert 60 <= n <= 70
     assert S.seeds_needed(0.01, 0.05) == 3  # t_1 = 12.7 is too wide with two
     assert S.seeds_needed(None, 0.05) is None
+
+
+def test_overlap_between_collision_calls_beyond_the_models_bound_is_unhealthy_when_the_seeds_are_combined(tmp_path):
+    """The seed's stats.json was judged healthy before the between-call overlap had a threshold: the
+    combined case judges it again from the run's summary and is flagged (issue 28: what the fluid
+    sees between calls may exceed the bound in a dense jam at a coarse spacing)."""
+    from lbmpipe.particles.collisions import OVERLAP_BOUND_FACTOR, CollisionParams
+    from lbmpipe.reproduction import health
+
+    bound = health.thresholds()["health"]["max_overlap_between_lu"]
+    assert bound == pytest.approx(OVERLAP_BOUND_FACTOR * CollisionParams().overlap_tol)
+    case = tmp_path / "c"
+    for k, before in ((1, 0.5 * bound), (2, 1.34 * bound)):
+        d = case / f"seed{k}"
+        d.mkdir(parents=True)
+        (d / "stats.json").write_text(json.dumps(S._jsonable(_seed_stats(1.0, 0.02))))
+        coll = {"enabled": True, "max_overlap_before_lu": before, "max_overlap_after_lu": 0.01}
+        (d / "summary.json").write_text(json.dumps({"status": "completed", "collisions": coll}))
+    out = S.write_combined("c", case, [1, 2])
+    assert out["health"]["issues"] == [f"seed 2: largest overlap between collision calls (lattice spacings) "
+                                       f"{1.34 * bound:.3g} > {bound:.3g}"]
+    assert "unhealthy" in out["flags"]
+    assert out["health"]["max_overlap_between_lu"] == pytest.approx(1.34 * bound)
+    row = health.health_row("c", case, health.thresholds()["health"])
+    assert "unhealthy" in row["flags"] and row["max_overlap_between_lu"] == pytest.approx(1.34 * bound)
+    # a seed without a summary keeps the health its statistics recorded
+    (case / "seed2" / "summary.json").unlink()
+    assert not S.write_combined("c", case, [1, 2])["health"]["issues"]

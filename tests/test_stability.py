@@ -51,7 +51,8 @@ def test_hard_case_runs_with_the_guard_and_meets_the_invariants(name, packings):
     assert row["mass_drift_rel"] <= bound
     assert row["ke_ratio_max"] <= st.BOUNDS["ke_ratio_max"]
     if row["particles"]:
-        assert row["max_overlap_after_lu"] <= row["overlap_bound_lu"] * (1 + 1e-9)
+        assert row["max_overlap_after_lu"] <= row["overlap_tol_lu"] * (1 + 1e-9)
+        assert row["max_overlap_before_lu"] <= st.BOUNDS["overlap_before_lu"]
         assert row["min_wall_clearance_lu"] >= st.BOUNDS["wall_clearance_min_lu"]
 
 
@@ -78,10 +79,10 @@ def test_suite_covers_the_issue_list():
 
 def test_a_run_that_breaks_a_bound_is_reported_as_violated_not_stable():
     row = {"status": "stable", "particles": 3, "mass_drift_rel": 0.0, "ke_ratio_max": 1.0,
-           "max_overlap_after_lu": 0.05, "overlap_bound_lu": 0.01, "max_overlap_before_lu": 0.05,
+           "max_overlap_after_lu": 0.05, "overlap_tol_lu": 0.01, "max_overlap_before_lu": 0.05,
            "min_wall_clearance_lu": -0.3}
     out = st._finish(dict(row))
-    assert out["status"] == "violated" and "overlap 0.05 > bound 0.01" in out["violations"]
+    assert out["status"] == "violated" and "overlap after the collision step 0.05 > overlap_tol 0.01" in out["violations"]
     assert "wall clearance -0.3" in out["violations"]
     ok = st._finish(dict(row, max_overlap_after_lu=0.01, min_wall_clearance_lu=-0.02))
     assert ok["status"] == "stable" and ok["violations"] == ""

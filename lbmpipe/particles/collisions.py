@@ -1760,4 +1760,4 @@ class CollisionEffect(Effect):
         """Summary entry: parameters, pair search on/off, totals over the run."""
         p = self.params
         return {"enabled": True, "pairs": self.pairs, "restitution": p.restitution, "contact_gap_lu": p.contact_gap,
-                "overlap_bound_lu": p.overlap_tol, **self.totals}
+                "overlap_tol_lu": p.overlap_tol, "overlap_bound_lu": p.overlap_bound, **self.totals}

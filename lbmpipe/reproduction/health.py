@@ -22,7 +22,11 @@ Run health of a case (:func:`run_health`), from its ``summary.json`` and ``flow_
   ``flow_rate.csv``'s ``max_density_deviation`` (largest ``|rho - 1|`` of the lattice);
 - ``rotation_projections``, ``rotation_projection_share``: rotating projections of the collision
   step, total and per step (an upper bound on the share of steps with one);
-- ``max_overlap_lu``: largest overlap left after the collisions (lattice spacings);
+- ``max_overlap_lu``: largest overlap left after the collisions (lattice spacings; the model
+  leaves at most ``overlap_tol``, :mod:`lbmpipe.particles.collisions`);
+- ``max_overlap_between_lu``: largest overlap found at the start of a collision call, i.e. what the
+  fluid and the drift made of the bodies between two calls (the model's overlap bound,
+  ``OVERLAP_BOUND_FACTOR * overlap_tol``, is the threshold);
 - ``flow_rate_error_rel``: ``|Q_mean / Q_target - 1|``.
 
 Flags (:func:`case_flags`): ``frozen`` (the orientations keep the packing,
@@ -45,7 +49,7 @@ _NAN = float("nan")
 CONFIG_PATH = Path(__file__).resolve().parents[2] / "config.yaml"
 HEALTH_COLUMNS = ["case", "status", "mass_floor_rel", "mass_drift_rel", "mass_corrected_rel",
                   "mass_corrected_throughflow", "density_deviation_median", "density_deviation_max", "rotation_projections",
-                  "rotation_projection_share", "max_overlap_lu", "flow_rate_error_rel", "frozen", "locked",
+                  "rotation_projection_share", "max_overlap_lu", "max_overlap_between_lu", "flow_rate_error_rel", "frozen", "locked",
                   "steady", "issues", "flags"]
 #: health quantity -> (threshold key in diagnostics.health, label of an issue)
 _LIMITS = {
@@ -55,6 +59,7 @@ _LIMITS = {
     "density_deviation_max": ("max_density_deviation", "largest density deviation"),
     "rotation_projection_share": ("max_rotation_projection_share", "rotating projections per step"),
     "max_overlap_lu": ("max_overlap_lu", "largest overlap (lattice spacings)"),
+    "max_overlap_between_lu": ("max_overlap_between_lu", "largest overlap between collision calls (lattice spacings)"),
     "flow_rate_error_rel": ("max_flow_rate_error_rel", "flow-rate error"),
 }
 NOT_COMPUTED = "not computed by this version of the statistics; rerun the case's statistics"
@@ -135,6 +140,24 @@ def flow_rate_error_rel(summary: dict) -> float:
     return abs(q / target - 1.0) if target > 0 and np.isfinite(q) else _NAN
 
 
+def overlap_tol_lu(collisions: dict) -> float:
+    """The collision model's ``overlap_tol`` of a summary's ``collisions`` record (a summary written
+    before ``overlap_tol_lu`` held it under ``overlap_bound_lu``)."""
+    return _num(collisions.get("overlap_tol_lu", collisions.get("overlap_bound_lu")))
+
+
+def refresh_health(stats: dict, run_dir: Path, limits: dict) -> dict:
+    """``stats`` (a run's ``stats.json``) with its ``health`` judged again from the run's
+    ``summary.json`` and ``flow_rate.csv`` against ``limits`` (today's thresholds, not those of the
+    day the statistics were computed) and its ``flags`` rebuilt; unchanged without a summary."""
+    summary = read_json(Path(run_dir) / "summary.json")
+    if not stats or summary is None:
+        return stats
+    stats = dict(stats, health=run_health(summary, read_flow_rate(run_dir), limits))
+    stats["flags"] = case_flags(stats)
+    return stats
+
+
 def run_health(summary: dict | None, flow_rate: pd.DataFrame | None, limits: dict) -> dict:
     """Run-health quantities of a case (module docstring), the ``issues`` beyond ``limits``
     (``diagnostics.health`` of the config) and ``healthy``."""
@@ -151,6 +174,7 @@ def run_health(summary: dict | None, flow_rate: pd.DataFrame | None, limits: dic
            "density_deviation_median": med, "density_deviation_max": mx,
            "rotation_projections": n_rot, "rotation_projection_share": share,
            "max_overlap_lu": _num(coll.get("max_overlap_after_lu")),
+           "max_overlap_between_lu": _num(coll.get("max_overlap_before_lu")),
            "flow_rate_error_rel": flow_rate_error_rel(s)}
     issues = [] if out["status"] in ("completed", "unpackable", "not run") else [f"status {out['status']}"]
     for key, (lim, label) in _LIMITS.items():

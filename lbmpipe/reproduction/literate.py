@@ -506,7 +506,8 @@ def method_comparison_section(fid_dir: Path, fidelity: str, config: dict, out_di
 
     fid = (config.get("fidelities") or {}).get(fidelity) or {}
     if fid.get("compare_with"):
-        return {"is_accurate": True, "paper_level": fid["compare_with"]}
+        # the paired runs are shown in the compared level's document
+        return {"is_accurate": True, "paper_level": fid["compare_with"], "runs": None}
     other = comparison_level(config, fidelity)
     if other is None:
         return None
@@ -593,7 +594,8 @@ def health_section(fid_dir: Path, config: dict) -> dict:
         rows.append(r)
     cols = ["case", "status", "mass_floor_rel", "mass_drift_rel", "mass_corrected_rel", "mass_corrected_throughflow",
             "density_deviation_median",
-            "density_deviation_max", "rotation_projection_share", "max_overlap_lu", "flow_rate_error_rel", "frozen",
+            "density_deviation_max", "rotation_projection_share", "max_overlap_lu", "max_overlap_between_lu",
+            "flow_rate_error_rel", "frozen",
             "locked", "steady", "flags", "issues"]
     limits = ", ".join(f"`{k}` = {fmt(v)}" for k, v in diag["health"].items())
     intro = (f"Thresholds (`config.yaml`, `diagnostics`): {limits}; frozen beyond "

@@ -206,12 +206,16 @@ def combine_summaries(case: str, per_seed: list[tuple[int, dict | None]]) -> dic
             "packing": first.get("packing")}
 
 
-def write_combined(case: str, case_dir: Path, seeds) -> dict:
+def write_combined(case: str, case_dir: Path, seeds, config: dict | None = None) -> dict:
     """Write the combined ``stats.json``, ``orientation.csv``, ``profile.csv`` and ``summary.json``
-    of ``case`` in ``case_dir`` from its ``seed<k>/`` runs; returns the combined stats."""
+    of ``case`` in ``case_dir`` from its ``seed<k>/`` runs; returns the combined stats. Each seed's
+    run health is judged again against ``config``'s thresholds (default: the repository's
+    ``config.yaml``) from its summary and flow-rate series, so a threshold changed after a run's
+    statistics were computed applies without its trajectory."""
     case_dir = Path(case_dir)
     dirs = _seed_dirs(case_dir, seeds)
-    stats = combine_stats(case, [(k, H.read_json(d / "stats.json")) for k, d in dirs])
+    limits = H.thresholds(config)["health"]
+    stats = combine_stats(case, [(k, H.refresh_health(H.read_json(d / "stats.json"), d, limits)) for k, d in dirs])
     (case_dir / "stats.json").write_text(json.dumps(_jsonable(stats), indent=2) + "\n")
 
     def _csv(p: Path):

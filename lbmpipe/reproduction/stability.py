@@ -53,6 +53,8 @@ from pathlib import Path
 
 import numpy as np
 
+from ..particles.collisions import OVERLAP_BOUND_FACTOR, CollisionParams
+from .health import overlap_tol_lu as _overlap_tol_lu
 from .pipe import DENSITY_KG_M3, pipe_scene, time_step
 
 #: stated bounds of the invariants
@@ -63,9 +65,9 @@ BOUNDS = {
     # first step, whose covering and uncovering shift it by up to ~2e-3 at 50 % (measured).
     "mass_drift_rel_particles": 5e-3,
     "ke_ratio_max": 3.0,  # kinetic energy / Hagen-Poiseuille's at the target Q
-    # collisions.py: overlaps are <= overlap_tol right after the collision step; the drift that
-    # follows in the same step can add a little (its dry-run test bounds it by 0.1 spacing)
-    "overlap_before_lu": 0.1,
+    # collisions.py: overlaps are <= overlap_tol right after the collision step and within the
+    # model's overlap bound (OVERLAP_BOUND_FACTOR * overlap_tol) between calls
+    "overlap_before_lu": OVERLAP_BOUND_FACTOR * CollisionParams().overlap_tol,
     "wall_clearance_min_lu": -0.1,
 }
 
@@ -343,7 +345,7 @@ def run_case(case: StabilityCase, dx_mm: float, steps: int, work_dir: Path | Non
                    ke_ratio_max=stats["ke"],
                    max_overlap_before_lu=ce["max_overlap_before_lu"] if ce is not None else float("nan"),
                    max_overlap_after_lu=ce["max_overlap_after_lu"] if ce is not None else float("nan"),
-                   overlap_bound_lu=ce["overlap_bound_lu"] if ce is not None else float("nan"),
+                   overlap_tol_lu=_overlap_tol_lu(ce) if ce is not None else float("nan"),
                    impulses=ce["impulses"] if ce is not None else 0,
                    min_wall_clearance_lu=stats["clear"],
                    wall_seconds=time.perf_counter() - t0)
@@ -400,9 +402,9 @@ def _finish(row: dict) -> dict:
             bad.append(f"mass drift {row['mass_drift_rel']:.3g} > {bound:g}")
         if row.get("ke_ratio_max", 0.0) > BOUNDS["ke_ratio_max"]:
             bad.append(f"kinetic energy ratio {row['ke_ratio_max']:.3g} > {BOUNDS['ke_ratio_max']:g}")
-        ova, tol = row.get("max_overlap_after_lu", float("nan")), row.get("overlap_bound_lu", float("nan"))
+        ova, tol = row.get("max_overlap_after_lu", float("nan")), row.get("overlap_tol_lu", float("nan"))
         if math.isfinite(ova) and ova > tol * (1 + 1e-9):
-            bad.append(f"overlap {ova:.3g} > bound {tol:g}")
+            bad.append(f"overlap after the collision step {ova:.3g} > overlap_tol {tol:g}")
         ovb = row.get("max_overlap_before_lu", float("nan"))
         if math.isfinite(ovb) and ovb > BOUNDS["overlap_before_lu"]:
             bad.append(f"overlap before the collision step {ovb:.3g} > {BOUNDS['overlap_before_lu']:g}")
@@ -421,7 +423,7 @@ def _finish(row: dict) -> dict:
 COLUMNS = ["case", "description", "settings", "status", "failed_step", "steps_done", "steps_requested", "dx_mm", "dt_s",
            "tau", "mach", "reynolds", "particles", "max_u_over_cs", "rho_min", "rho_max", "mass_drift_rel",
            "mass_corrected_rel", "floor_mass_rel", "floor_node_updates", "ke_ratio_max", "max_overlap_before_lu",
-           "max_overlap_after_lu", "overlap_bound_lu", "impulses", "min_wall_clearance_lu", "violations", "message", "wall_seconds"]
+           "max_overlap_after_lu", "overlap_tol_lu", "impulses", "min_wall_clearance_lu", "violations", "message", "wall_seconds"]
 
 
 def run_suite(settings: dict, out_csv: Path | None = None, cases: list[StabilityCase] | None = None,

@@ -44,13 +44,17 @@ rule combine_seeds:
         orientation="results/{fidelity}/cases/{case}/orientation.csv",
         profile="results/{fidelity}/cases/{case}/profile.csv",
         summary="results/{fidelity}/cases/{case}/summary.json",
+    params:
+        # the run-health thresholds: changing one recombines the cases (health is judged here again)
+        health=config["diagnostics"]["health"],
     wildcard_constraints:
         fidelity=_level_regex(SEEDED_LEVELS),
         case="(cyl|cube|sphere)[^/]+",
     log:
         "results/{fidelity}/logs/{case}.combine.log",
     run:
-        write_combined(wildcards.case, Path(output.stats).parent, [int(Path(f).parent.name[4:]) for f in input.stats])
+        write_combined(wildcards.case, Path(output.stats).parent, [int(Path(f).parent.name[4:]) for f in input.stats],
+                       config)
 
 
 # In a seeded level cases/<case>/ is the seeds' combined record, never a run of its own.
