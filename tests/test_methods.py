@@ -148,3 +148,16 @@ def test_comparison_writes_its_tables_even_before_any_accurate_run(tmp_path):
     assert s["accurate_level"] == "acc" and s["accurate_runs_planned"] == 2 and s["pairs"] == 0
     assert (tmp_path / "base" / "method" / "runs.csv").exists() and (tmp_path / "base" / "method" / "claims.csv").exists()
     assert (tmp_path / "base" / "method" / "method_comparison.png").stat().st_size > 0
+
+
+def test_a_paired_runs_flags_are_judged_against_todays_health_thresholds(tmp_path):
+    # the run's stats.json was written with no health issue; its summary shows an overlap between
+    # collision calls beyond the collision model's bound, which makes the run unhealthy today
+    _run(tmp_path, "base", "cyl8x16_c30_re9.4/seed1", (1.0, 1.0, 0.5), (0.1, 0.1, 0.05), angle=40.0)
+    _run(tmp_path, "acc", "cyl8x16_c30_re9.4/seed1", (1.0, 1.0, 0.5), (0.1, 0.1, 0.05), angle=40.0)
+    d = tmp_path / "acc" / "cases" / "cyl8x16_c30_re9.4" / "seed1"
+    (d / "summary.json").write_text(json.dumps({"status": "completed", "profile_error_rel_l2": 0.01,
+                                                "collisions": {"max_overlap_before_lu": 0.2}}))
+    runs = methods.run_rows(_config(), "base", "acc", tmp_path).set_index(["run", "observable"])
+    row = runs.loc[("cyl8x16_c30_re9.4/seed1", "mean_abs_omega_x")]
+    assert row["accurate_flags"] == "unhealthy" and row["paper_flags"] == ""

@@ -149,13 +149,16 @@ def overlap_tol_lu(collisions: dict) -> float:
 def refresh_health(stats: dict, run_dir: Path, limits: dict) -> dict:
     """``stats`` (a run's ``stats.json``) with its ``health`` judged again from the run's
     ``summary.json`` and ``flow_rate.csv`` against ``limits`` (today's thresholds, not those of the
-    day the statistics were computed) and its ``flags`` rebuilt; unchanged without a summary."""
+    day the statistics were computed) and its ``unhealthy`` flag set accordingly (the other flags
+    as the statistics found them); unchanged without a summary."""
     summary = read_json(Path(run_dir) / "summary.json")
     if not stats or summary is None:
         return stats
-    stats = dict(stats, health=run_health(summary, read_flow_rate(run_dir), limits))
-    stats["flags"] = case_flags(stats)
-    return stats
+    health = run_health(summary, read_flow_rate(run_dir), limits)
+    flags = [f for f in (stats.get("flags") or []) if f != "unhealthy"]
+    if health["issues"]:  # where case_flags puts it: before "not steady"
+        flags.insert(flags.index("not steady") if "not steady" in flags else len(flags), "unhealthy")
+    return dict(stats, health=health, flags=flags)
 
 
 def run_health(summary: dict | None, flow_rate: pd.DataFrame | None, limits: dict) -> dict:

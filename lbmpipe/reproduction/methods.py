@@ -26,6 +26,7 @@ import pandas as pd
 from .cases import level_runs
 from .health import _num as _f
 from .health import read_json as _read
+from .health import refresh_health, thresholds
 
 #: the orientation angle of each shape that Figs. 8-9 show (stats.json ``orientation``)
 ANGLE_KEY = {"cylinder": "cyl_axis_angle", "cube": "cube_projected_angle"}
@@ -60,13 +61,18 @@ def stats_values(stats: dict) -> dict[str, tuple[float, float]]:
     return out
 
 
-def completed_record(run_dir: Path) -> tuple[dict, dict] | None:
+def completed_record(run_dir: Path, limits: dict | None = None) -> tuple[dict, dict] | None:
     """The ``summary.json`` and ``stats.json`` records of a completed run or case (the latter
-    empty for a particle-free run); None if it is missing or did not complete."""
+    empty for a particle-free run); None if it is missing or did not complete. A single run's
+    health and flags are judged again against ``limits`` (default: ``config.yaml``'s
+    ``diagnostics.health``), as when seeds are combined (``seeds.write_combined``)."""
     summary = _read(Path(run_dir) / "summary.json")
     if summary is None or summary.get("status") != "completed":
         return None
-    return summary, _read(Path(run_dir) / "stats.json") or {}
+    stats = _read(Path(run_dir) / "stats.json") or {}
+    if not isinstance(stats.get("seeds"), list):
+        stats = refresh_health(stats, run_dir, limits if limits is not None else thresholds()["health"])
+    return summary, stats
 
 
 def observables(run_dir: Path) -> tuple[dict[str, tuple[float, float]], str] | None:
