@@ -77,3 +77,29 @@ def test_a_case_missing_at_a_spacing_says_how_many_were_run(tmp_path):
     assert order["status"].tolist() == ["2 of 3 spacings run; the change exceeds its interval"] and s["observed"] == 0
     assert order["d1"].iloc[0] == pytest.approx(0.03)  # profile distance 0.04 at 2 mm, 0.01 at 1 mm
     assert s["levels"] == {"coarse": 2.0, "base": 1.0, "fine": 0.5}
+
+
+def test_accuracy_against_cost_draws_each_observable_at_each_spacing_with_its_cost(tmp_path, monkeypatch):
+    # three spacings at costs 1, 8 and 64 loop-s per simulated s; the flagged finest value is hollow
+    from lbmpipe.reproduction import figures
+
+    for level, h, cost in (("coarse", 2.0, 1.0), ("base", 1.0, 8.0), ("fine", 0.5, 64.0)):
+        _case(tmp_path, level, "cyl16x16_c30_re9.4", 1.0 + 0.1 * h * h, 0.02, profile_scale=0.04 * h * h)
+        (tmp_path / level / "tables").mkdir()
+        pd.DataFrame([{"case": "cyl16x16_c30_re9.4/seed1", "status": "completed", "steps": 100, "simulated_s": 2.0,
+                       "s_per_step": cost * 2.0 / 100}]).to_csv(tmp_path / level / "tables" / "runtime.csv", index=False)
+    vals = convergence.value_rows(_config(), "base", tmp_path)
+    vals.loc[vals["level"] == "fine", "flags"] = "not steady"
+    drawn = {}
+    monkeypatch.setattr(figures, "save", lambda fig, stem: drawn.setdefault("fig", fig) and [])
+    figures.convergence_accuracy_cost(vals, tmp_path / "fig")
+    profile, omega, angle = drawn["fig"].axes[:3]
+    xs = sorted({round(float(x), 6) for line in omega.lines for x in line.get_xdata()})
+    assert xs == [1.0, 8.0, 64.0]
+    assert len([t for t in omega.texts if t.get_text().endswith("mm")]) == 9  # x, y, z at three spacings
+    markers = [line for line in profile.lines if line.get_marker() == "o"]
+    assert [m.get_markerfacecolor() for m in markers].count("white") == 1  # the flagged finest spacing
+    assert not angle.axison  # no angle in these records: the panel is left empty
+    monkeypatch.undo()
+    convergence.write(_config(), "base", tmp_path, tmp_path / "out")
+    assert (tmp_path / "out" / "accuracy_cost.png").stat().st_size > 0

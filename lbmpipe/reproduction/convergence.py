@@ -142,13 +142,18 @@ def order_rows(values: pd.DataFrame) -> pd.DataFrame:
 
 
 def write(config: dict, base: str, root: Path, out_dir: Path) -> dict:
-    """Write ``values.csv``, ``order.csv`` and ``summary.json`` of ``base``'s convergence levels."""
+    """Write ``values.csv``, ``order.csv``, ``summary.json`` and the figure ``accuracy_cost.png``/
+    ``.pdf`` (each observable against its cost, by dx) of ``base``'s convergence levels."""
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     vals = value_rows(config, base, root)
     order = order_rows(vals) if len(vals) else pd.DataFrame(columns=ORDER_COLUMNS)
     vals.to_csv(out_dir / "values.csv", index=False, float_format="%.6g")
     order.to_csv(out_dir / "order.csv", index=False, float_format="%.4g")
+    from .figures import convergence_accuracy_cost
+
+    convergence_accuracy_cost(vals, out_dir / "accuracy_cost",
+                              title=f"The paper's observables against their cost as dx is refined (level {base})")
     lvls = levels(config, base)
     s = {"base": base, "levels": {lv: float(config["fidelities"][lv]["dx_mm"]) for lv in lvls},
          "cases": sorted(vals["case"].unique().tolist()) if len(vals) else [],

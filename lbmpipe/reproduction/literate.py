@@ -537,10 +537,10 @@ def method_comparison_section(fid_dir: Path, fidelity: str, config: dict, out_di
                                     "significant"]) if runs is not None and len(runs) else None}
 
 
-def convergence_section(fid_dir: Path, fidelity: str, config: dict) -> dict | None:
+def convergence_section(fid_dir: Path, fidelity: str, config: dict, out_dir: Path) -> dict | None:
     """The paper's observables by dx (``lbmpipe.reproduction.convergence``): the levels with their
-    runs done and planned, the values and the observed orders (``results/<level>/convergence/``);
-    None for a level nothing refines."""
+    runs done and planned, the values, the observed orders and the figure of accuracy against cost
+    (``results/<level>/convergence/``); None for a level nothing refines."""
     from .convergence import levels
     from .health import read_json
 
@@ -554,7 +554,9 @@ def convergence_section(fid_dir: Path, fidelity: str, config: dict) -> dict | No
     for lv in lvls:
         done, planned = _runs_done(config, lv, Path(fid_dir).parent)
         info.append({"level": lv, "dx": fmt(config["fidelities"][lv]["dx_mm"]), "done": done, "planned": planned})
-    return {"levels": info, "observed": summ.get("observed", 0), "compared": summ.get("compared", 0),
+    png = cdir / "accuracy_cost.png"
+    figure = os.path.relpath(png.resolve(), Path(out_dir).resolve()).replace(os.sep, "/") if png.is_file() else None
+    return {"levels": info, "observed": summ.get("observed", 0), "compared": summ.get("compared", 0), "figure": figure,
             "order_table": table_of(order, list(order.columns)) if order is not None and len(order) else None,
             "value_table": table_of(vals, ["case", "observable", "dx_mm", "value", "ci95", "n_seeds", "loop_s_per_sim_s", "flags"])
             if vals is not None and len(vals) else None}
@@ -1013,7 +1015,7 @@ def build_context(repo_root: Path, fid_dir: Path, fidelity: str, config: dict, o
         "health": health_ctx,
         "runtime": runtime_section(fid_dir, fidelity),
         "method": method_comparison_section(fid_dir, fidelity, config, out_dir),
-        "convergence": convergence_section(fid_dir, fidelity, config),
+        "convergence": convergence_section(fid_dir, fidelity, config, out_dir),
         "missing": lambda rel: f"not built at this level: `{_rel_to(fid_dir, repo_root)}/{rel}` missing",
     }
 

@@ -72,6 +72,8 @@ rule convergence:
         values="results/{fidelity}/convergence/values.csv",
         order="results/{fidelity}/convergence/order.csv",
         summary="results/{fidelity}/convergence/summary.json",
+        figure="results/{fidelity}/convergence/accuracy_cost.png",
+        figure_pdf="results/{fidelity}/convergence/accuracy_cost.pdf",
     log:
         "results/{fidelity}/logs/convergence.log",
     run:
