@@ -103,3 +103,21 @@ def test_accuracy_against_cost_draws_each_observable_at_each_spacing_with_its_co
     monkeypatch.undo()
     convergence.write(_config(), "base", tmp_path, tmp_path / "out")
     assert (tmp_path / "out" / "accuracy_cost.png").stat().st_size > 0
+
+
+def test_a_value_too_short_for_an_interval_gives_no_order_and_says_so(tmp_path):
+    # omega converges at order 2 as in the test above, but the finest run was too short for a valid
+    # interval of omega_x (null ci): its noise is unknown, so no order and no sign test
+    for level, h in (("coarse", 2.0), ("base", 1.0), ("fine", 0.5)):
+        _case(tmp_path, level, "cyl16x16_c30_re9.4", 1.0 + 0.1 * h * h, 0.02, profile_scale=0.04 * h * h)
+    vals = convergence.value_rows(_config(), "base", tmp_path)
+    fine_x = (vals["level"] == "fine") & (vals["observable"] == "mean_abs_omega_x")
+    vals.loc[fine_x, "ci95"] = float("nan")
+    order = convergence.order_rows(vals).set_index("observable")
+    assert math.isnan(order.loc["mean_abs_omega_x", "order"])
+    assert order.loc["mean_abs_omega_x", "status"] == ("no valid interval at dx 0.5 mm (run too short): "
+                                                        "the noise cannot be judged")
+    assert order.loc["mean_abs_omega_z", "status"] == "observed"
+    assert order.loc["profile_distance", "status"] == "observed"  # compared without an interval by design
+    two = convergence.order_rows(vals[vals["level"] != "coarse"]).set_index("observable")
+    assert two.loc["mean_abs_omega_x", "status"].endswith("the noise cannot be judged")

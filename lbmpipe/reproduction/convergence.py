@@ -9,7 +9,8 @@ record (``cases/<case>/stats.json``, the seeds combined where a level has severa
 ``d1 = f(h) - f(h/2)`` and ``d2 = f(h/2) - f(h/4)`` carry the two values' intervals combined
 (``sqrt(ci_a^2 + ci_b^2)``). The observed order ``p = log2(|d1| / |d2|)`` is given only when both
 changes exceed their intervals and share a sign (monotone convergence); otherwise the status says
-which change the noise hides. The cost beside each value is the level's measured time-loop seconds
+which change the noise hides. A value other than the profile's distance that has no interval (its
+run too short for 20 valid batches) has unknown noise: no order, and the status says so. The cost beside each value is the level's measured time-loop seconds
 per simulated second of that case (``tables/runtime.csv``, summed over its seeds' runs).
 """
 
@@ -25,6 +26,8 @@ import pandas as pd
 from .cases import level_cases
 from .methods import completed_record, stats_values
 
+#: observables compared without an interval (one deterministic value per run)
+NO_INTERVAL = ("profile_distance",)
 ROW_COLUMNS = ["case", "observable", "level", "dx_mm", "value", "ci95", "n_seeds", "loop_s_per_sim_s", "flags"]
 ORDER_COLUMNS = ["case", "observable", "dx_mm", "d1", "d1_ci95", "d2", "d2_ci95", "order", "status"]
 
@@ -110,24 +113,31 @@ def order_rows(values: pd.DataFrame) -> pd.DataFrame:
     for (case, obs), g in values.groupby(["case", "observable"], sort=True):
         g = g.sort_values("dx_mm", ascending=False)
         dx = g["dx_mm"].to_numpy(float)
+        c_all = g["ci95"].to_numpy(float)
+        # the profile's distance carries no interval by design (it adds none); any other value
+        # without one ran too short for a valid interval, so its noise is unknown
+        unknown = [] if obs in NO_INTERVAL else [f"{x:g}" for x, ci in zip(dx[:3], c_all[:3]) if not np.isfinite(ci)]
+        no_noise = f"no valid interval at dx {', '.join(unknown)} mm (run too short): the noise cannot be judged"
         if len(g) < 3:
             row = {"case": case, "observable": obs, "dx_mm": " ".join(f"{x:g}" for x in dx),
                    "status": f"{len(g)} of 3 spacings run"}
             if len(g) == 2:  # the one change there is, and whether it stands out of the noise
-                f, c = g["value"].to_numpy(float), np.nan_to_num(g["ci95"].to_numpy(float))
+                f, c = g["value"].to_numpy(float), np.nan_to_num(c_all)
                 row.update(d1=f[0] - f[1], d1_ci95=math.hypot(c[0], c[1]))
-                row["status"] += ("; the change exceeds its interval" if abs(row["d1"]) > row["d1_ci95"]
-                                  else "; the change is within its interval")
+                row["status"] += (f"; {no_noise}" if unknown else "; the change exceeds its interval"
+                                  if abs(row["d1"]) > row["d1_ci95"] else "; the change is within its interval")
             rows.append(row)
             continue
-        f, c = g["value"].to_numpy(float)[:3], g["ci95"].to_numpy(float)[:3]
-        c = np.where(np.isfinite(c), c, 0.0)  # a value without an interval (the profile) adds none
+        f, c = g["value"].to_numpy(float)[:3], c_all[:3]
+        c = np.where(np.isfinite(c), c, 0.0)
         d1, d2 = f[0] - f[1], f[1] - f[2]
         e1, e2 = math.hypot(c[0], c[1]), math.hypot(c[1], c[2])
         row = {"case": case, "observable": obs, "dx_mm": " ".join(f"{x:g}" for x in dx[:3]),
                "d1": d1, "d1_ci95": e1, "d2": d2, "d2_ci95": e2, "order": float("nan")}
         if not np.allclose([dx[0] / dx[1], dx[1] / dx[2]], 2.0):
             row["status"] = "spacings do not halve"
+        elif unknown:
+            row["status"] = no_noise
         elif abs(d2) <= e2:
             row["status"] = f"noise hides the order: the finer change {abs(d2):.3g} is within its interval {e2:.3g}"
         elif abs(d1) <= e1:
