@@ -21,16 +21,25 @@ def _config():
                                     "run": {}}}}
 
 
-def _case(root, level, case, omega, ci, profile_scale):
+def _profile(d, profile_scale):
+    r = np.linspace(0.5, 24.5, 25)
+    ref = 1.0 - (r / 25.0) ** 2
+    d.mkdir(parents=True, exist_ok=True)
+    pd.DataFrame({"r_mm": r, "uz_m_s": ref * (1 - profile_scale), "uz_poiseuille_m_s": ref, "nodes": 4 * r}).to_csv(
+        d / "profile.csv", index=False)
+
+
+def _case(root, level, case, omega, ci, profile_scale, seeds=3):
     d = root / level / "cases" / case
     d.mkdir(parents=True)
     (d / "summary.json").write_text(json.dumps({"status": "completed"}))
-    r = np.linspace(0.5, 24.5, 25)
-    ref = 1.0 - (r / 25.0) ** 2
-    pd.DataFrame({"r_mm": r, "uz_m_s": ref * (1 - profile_scale), "uz_poiseuille_m_s": ref, "nodes": 4 * r}).to_csv(
-        d / "profile.csv", index=False)
+    _profile(d, profile_scale)
     if omega is not None:
-        (d / "stats.json").write_text(json.dumps({"shape": "cylinder", "n_seeds": 3, "flags": [],
+        # the packings' own profiles scatter by 1 % about the combined one
+        for k in range(1, seeds + 1):
+            _profile(d / f"seed{k}", profile_scale * (1 + 0.01 * (k - 2)))
+        (d / "stats.json").write_text(json.dumps({"shape": "cylinder", "n_seeds": seeds, "flags": [],
+                                                  "seeds": [{"seed": k, "status": "completed"} for k in range(1, seeds + 1)],
                                                   "mean_abs_omega_rad_s": {"x": omega, "y": omega, "z": omega / 2},
                                                   "ci95_rad_s": {"x": ci, "y": 10 * ci, "z": ci}}))
 
@@ -107,7 +116,8 @@ def test_accuracy_against_cost_draws_each_observable_at_each_spacing_with_its_co
 
 def test_a_value_too_short_for_an_interval_gives_no_order_and_says_so(tmp_path):
     # omega converges at order 2 as in the test above, but the finest run was too short for a valid
-    # interval of omega_x (null ci): its noise is unknown, so no order and no sign test
+    # interval of omega_x (null ci): its noise is unknown, so no order and no sign test; the
+    # profile's distance has its interval from the packings' spread
     for level, h in (("coarse", 2.0), ("base", 1.0), ("fine", 0.5)):
         _case(tmp_path, level, "cyl16x16_c30_re9.4", 1.0 + 0.1 * h * h, 0.02, profile_scale=0.04 * h * h)
     vals = convergence.value_rows(_config(), "base", tmp_path)
@@ -115,9 +125,22 @@ def test_a_value_too_short_for_an_interval_gives_no_order_and_says_so(tmp_path):
     vals.loc[fine_x, "ci95"] = float("nan")
     order = convergence.order_rows(vals).set_index("observable")
     assert math.isnan(order.loc["mean_abs_omega_x", "order"])
-    assert order.loc["mean_abs_omega_x", "status"] == ("no valid interval at dx 0.5 mm (run too short): "
-                                                        "the noise cannot be judged")
+    assert order.loc["mean_abs_omega_x", "status"] == "no valid interval at dx 0.5 mm: the noise cannot be judged"
     assert order.loc["mean_abs_omega_z", "status"] == "observed"
-    assert order.loc["profile_distance", "status"] == "observed"  # compared without an interval by design
+    assert order.loc["profile_distance", "status"] == "observed"
+    prof = vals[(vals["observable"] == "profile_distance") & (vals["level"] == "base")]
+    assert float(prof["ci95"].iloc[0]) == pytest.approx(4.303 * 0.0004 / math.sqrt(3), rel=1e-3)  # t(2) sd / sqrt(3)
     two = convergence.order_rows(vals[vals["level"] != "coarse"]).set_index("observable")
     assert two.loc["mean_abs_omega_x", "status"].endswith("the noise cannot be judged")
+
+
+def test_a_particle_cases_profile_from_one_packing_has_unknown_noise_and_a_flow_none(tmp_path):
+    for level, h in (("coarse", 2.0), ("base", 1.0), ("fine", 0.5)):
+        _case(tmp_path, level, "cyl16x16_c30_re9.4", 1.0 + 0.1 * h * h, 0.02, profile_scale=0.04 * h * h,
+              seeds=1 if level == "fine" else 3)
+        _case(tmp_path, level, "flow_re9.4", None, None, profile_scale=0.01 * h * h)
+    vals = convergence.value_rows(_config(), "base", tmp_path)
+    order = convergence.order_rows(vals).set_index(["case", "observable"])
+    assert order.loc[("cyl16x16_c30_re9.4", "profile_distance"), "status"] == (
+        "no valid interval at dx 0.5 mm: the noise cannot be judged")
+    assert order.loc[("flow_re9.4", "profile_distance"), "order"] == pytest.approx(2.0)  # steady: interval 0

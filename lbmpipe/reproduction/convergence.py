@@ -9,8 +9,10 @@ record (``cases/<case>/stats.json``, the seeds combined where a level has severa
 ``d1 = f(h) - f(h/2)`` and ``d2 = f(h/2) - f(h/4)`` carry the two values' intervals combined
 (``sqrt(ci_a^2 + ci_b^2)``). The observed order ``p = log2(|d1| / |d2|)`` is given only when both
 changes exceed their intervals and share a sign (monotone convergence); otherwise the status says
-which change the noise hides. A value other than the profile's distance that has no interval (its
-run too short for 20 valid batches) has unknown noise: no order, and the status says so. The cost beside each value is the level's measured time-loop seconds
+which change the noise hides. The profile's distance has an interval from its packings' spread
+(none needed for a particle-free flow, which is steady). A value without an interval (a run too
+short for 20 valid batches; a particle case's profile from one packing) has unknown noise: no
+order, and the status says so. The cost beside each value is the level's measured time-loop seconds
 per simulated second of that case (``tables/runtime.csv``, summed over its seeds' runs).
 """
 
@@ -22,12 +24,11 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
+from scipy import stats as _st
 
 from .cases import level_cases
 from .methods import completed_record, stats_values
 
-#: observables compared without an interval (one deterministic value per run)
-NO_INTERVAL = ("profile_distance",)
 ROW_COLUMNS = ["case", "observable", "level", "dx_mm", "value", "ci95", "n_seeds", "loop_s_per_sim_s", "flags"]
 ORDER_COLUMNS = ["case", "observable", "dx_mm", "d1", "d1_ci95", "d2", "d2_ci95", "order", "status"]
 
@@ -60,8 +61,22 @@ def case_values(case_dir: Path) -> tuple[dict[str, tuple[float, float]], dict]:
     if record is None:
         return {}, {}
     stats = record[1]
-    return {"profile_distance": (profile_distance(Path(case_dir) / "profile.csv"), float("nan")),
+    return {"profile_distance": (profile_distance(Path(case_dir) / "profile.csv"), profile_distance_ci95(case_dir, stats)),
             **stats_values(stats)}, stats
+
+
+def profile_distance_ci95(case_dir: Path, stats: dict) -> float:
+    """95 % half-width of a case's profile distance: 0 for a particle-free flow (steady, no
+    statistical noise); from the spread of its packings' own distances (Student t, n - 1 degrees of
+    freedom) where two or more completed; NaN (unknown) for a particle case from one packing."""
+    if not stats:
+        return 0.0
+    seeds = [s["seed"] for s in stats.get("seeds") or [] if isinstance(s, dict) and s.get("status") == "completed"]
+    d = np.array([profile_distance(Path(case_dir) / f"seed{k}" / "profile.csv") for k in seeds], float)
+    d = d[np.isfinite(d)]
+    if len(d) < 2:
+        return float("nan")
+    return float(_st.t.ppf(0.975, len(d) - 1) * d.std(ddof=1) / math.sqrt(len(d)))
 
 
 def _cost(runtime: pd.DataFrame | None, case: str) -> float:
@@ -114,10 +129,10 @@ def order_rows(values: pd.DataFrame) -> pd.DataFrame:
         g = g.sort_values("dx_mm", ascending=False)
         dx = g["dx_mm"].to_numpy(float)
         c_all = g["ci95"].to_numpy(float)
-        # the profile's distance carries no interval by design (it adds none); any other value
-        # without one ran too short for a valid interval, so its noise is unknown
-        unknown = [] if obs in NO_INTERVAL else [f"{x:g}" for x, ci in zip(dx[:3], c_all[:3]) if not np.isfinite(ci)]
-        no_noise = f"no valid interval at dx {', '.join(unknown)} mm (run too short): the noise cannot be judged"
+        # a value without an interval (a run too short for one; a particle case's profile from one
+        # packing) has unknown noise
+        unknown = [f"{x:g}" for x, ci in zip(dx[:3], c_all[:3]) if not np.isfinite(ci)]
+        no_noise = f"no valid interval at dx {', '.join(unknown)} mm: the noise cannot be judged"
         if len(g) < 3:
             row = {"case": case, "observable": obs, "dx_mm": " ".join(f"{x:g}" for x in dx),
                    "status": f"{len(g)} of 3 spacings run"}
@@ -129,7 +144,7 @@ def order_rows(values: pd.DataFrame) -> pd.DataFrame:
             rows.append(row)
             continue
         f, c = g["value"].to_numpy(float)[:3], c_all[:3]
-        c = np.where(np.isfinite(c), c, 0.0)
+        c = np.where(np.isfinite(c), c, 0.0)  # only reached with every interval known
         d1, d2 = f[0] - f[1], f[1] - f[2]
         e1, e2 = math.hypot(c[0], c[1]), math.hypot(c[1], c[2])
         row = {"case": case, "observable": obs, "dx_mm": " ".join(f"{x:g}" for x in dx[:3]),
