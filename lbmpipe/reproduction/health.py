@@ -140,12 +140,6 @@ def flow_rate_error_rel(summary: dict) -> float:
     return abs(q / target - 1.0) if target > 0 and np.isfinite(q) else _NAN
 
 
-def overlap_tol_lu(collisions: dict) -> float:
-    """The collision model's ``overlap_tol`` of a summary's ``collisions`` record (a summary written
-    before ``overlap_tol_lu`` held it under ``overlap_bound_lu``)."""
-    return _num(collisions.get("overlap_tol_lu", collisions.get("overlap_bound_lu")))
-
-
 def refresh_health(stats: dict, run_dir: Path, limits: dict) -> dict:
     """``stats`` (a run's ``stats.json``) with its ``health`` judged again from the run's
     ``summary.json`` and ``flow_rate.csv`` against ``limits`` (today's thresholds, not those of the

@@ -176,6 +176,11 @@ _CITE = re.compile(rf"\bEqs?\.\s*({_GROUP}(?:\s*(?:-|–|—|,|and|to)\s*{_GROUP
 _PART = re.compile(rf"({_GROUP})|(-|–|—|to)")
 
 
+
+def _href(target: Path, out_dir: Path) -> str:
+    """``target``'s path relative to ``out_dir`` (the document's folder), with forward slashes."""
+    return os.path.relpath(Path(target).resolve(), Path(out_dir).resolve()).replace(os.sep, "/")
+
 def cited_equations(text: str) -> set[int]:
     """Equation numbers a docstring cites: ``Eq. (N)``, ``Eq. (Na)`` (a sub-equation counts as N),
     ``Eqs. (N)-(M)`` (a range), ``Eqs. (N), (M)``, ``Eqs. (N) and (M)``, ``Eq. (N, M)``."""
@@ -231,7 +236,7 @@ def equation_index(package_dir: Path) -> dict[int, list[Ref]]:
 
 
 def _link(ref: Ref, eq: int, repo_root: Path, out_dir: Path) -> str:
-    target = os.path.relpath(Path(repo_root).resolve() / ref.module, Path(out_dir).resolve()).replace(os.sep, "/")
+    target = _href(Path(repo_root).resolve() / ref.module, out_dir)
     return f'[{ref.module}:L{ref.line}]({target}#L{ref.line} "Eq. {eq}: {ref.qualname}")'
 
 
@@ -438,8 +443,8 @@ def figure_entries(fid_dir: Path, out_dir: Path) -> list[dict]:
         ours, source = _our_caption(png.stem)
         pdf = png.with_suffix(".pdf")
         out.append({"key": key, "stem": png.stem,
-                    "image": os.path.relpath(png.resolve(), Path(out_dir).resolve()).replace(os.sep, "/"),
-                    "pdf": os.path.relpath(pdf.resolve(), Path(out_dir).resolve()).replace(os.sep, "/")
+                    "image": _href(png, out_dir),
+                    "pdf": _href(pdf, out_dir)
                     if pdf.is_file() else None,
                     "ours": ours, "ours_source": source,
                     "paper": PAPER_CAPTIONS.get(key.rstrip("ab") if key not in PAPER_CAPTIONS else key,
@@ -521,7 +526,7 @@ def method_comparison_section(fid_dir: Path, fidelity: str, config: dict, out_di
     compared = (claims["same_under_both_methods"] != "not compared"
                 if claims is not None and "same_under_both_methods" in claims else None)
     png = mdir / "method_comparison.png"
-    figure = os.path.relpath(png.resolve(), Path(out_dir).resolve()).replace(os.sep, "/") if png.is_file() else None
+    figure = _href(png, out_dir) if png.is_file() else None
     return {"is_accurate": False, "level": other, "planned": summ.get("accurate_runs_planned", 0), "done": done,
             "figure": figure,
             "pairs": summ.get("pairs", 0), "omega_compared": summ.get("omega_compared", 0),
@@ -555,7 +560,7 @@ def convergence_section(fid_dir: Path, fidelity: str, config: dict, out_dir: Pat
         done, planned = _runs_done(config, lv, Path(fid_dir).parent)
         info.append({"level": lv, "dx": fmt(config["fidelities"][lv]["dx_mm"]), "done": done, "planned": planned})
     png = cdir / "accuracy_cost.png"
-    figure = os.path.relpath(png.resolve(), Path(out_dir).resolve()).replace(os.sep, "/") if png.is_file() else None
+    figure = _href(png, out_dir) if png.is_file() else None
     return {"levels": info, "observed": summ.get("observed", 0), "compared": summ.get("compared", 0), "figure": figure,
             "order_table": table_of(order, list(order.columns)) if order is not None and len(order) else None,
             "value_table": table_of(vals, ["case", "observable", "dx_mm", "value", "ci95", "n_seeds", "loop_s_per_sim_s", "flags"])
@@ -635,7 +640,7 @@ def study_section(fid_dir: Path, out_dir: Path) -> dict:
                                   "truncated": len(df) > 60, "rows": fmt(len(df))})
     for png in sorted(sdir.glob("*.png")):
         sec["figures"].append({"file": _rel(png, fid_dir),
-                               "image": os.path.relpath(png.resolve(), Path(out_dir).resolve()).replace(os.sep, "/")})
+                               "image": _href(png, out_dir)})
     return sec
 
 
@@ -720,7 +725,7 @@ def key_equations(repo_root: Path, out_dir: Path, index: dict[int, list[Ref]]) -
     for numbers, module, linked, excerpt_of, start, n_lines in KEY_EQUATIONS:
         refs = [r for n in numbers for r in index.get(n, []) if r.module == module and r.qualname == linked]
         ex = code_excerpt(repo_root, module, excerpt_of, start, n_lines)
-        target = os.path.relpath(Path(repo_root).resolve() / module, Path(out_dir).resolve()).replace(os.sep, "/")
+        target = _href(Path(repo_root).resolve() / module, out_dir)
         out.append({
             "numbers": ", ".join(f"({n})" for n in numbers),
             "label": "; ".join(lb for lb in (equation_label(n) for n in numbers) if lb),
@@ -991,13 +996,13 @@ def build_context(repo_root: Path, fid_dir: Path, fidelity: str, config: dict, o
         "figure_sections": figure_sections(fid_dir, out_dir, config, claim_rows, case_data, health_ctx["rows"]),
         "claims_summary": claim_rows,
         "health_summary": health_summary_table(fid_dir, config, health_ctx["rows"], case_data),
-        "gallery": os.path.relpath(gallery.resolve(), out_dir.resolve()).replace(os.sep, "/") if gallery else None,
+        "gallery": _href(gallery, out_dir) if gallery else None,
         "gallery_caption": _our_caption("fig3_snapshot")[0],
         "level_parameters": [p for p in params if p["fidelity"] == fidelity],
         "fidelity": fidelity,
         "fid_dir": _rel_to(fid_dir, repo_root),
         # the paper's reading, relative to the document wherever it is built
-        "reading_link": os.path.relpath(repo_root.resolve() / "paper" / "reading.md", out_dir.resolve()).replace(os.sep, "/"),
+        "reading_link": _href(repo_root.resolve() / "paper" / "reading.md", out_dir),
         "level_md": ", ".join(f"`{k}` = {fmt(v)}" for k, v in fid_cfg.items() if not isinstance(v, dict))
                     or "(not in config.yaml)",
         "level_run_md": ", ".join(f"`{k}` = {fmt(v)}" for k, v in (fid_cfg.get("run") or {}).items()) or "–",

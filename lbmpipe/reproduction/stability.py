@@ -53,8 +53,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..particles.collisions import OVERLAP_BOUND_FACTOR, CollisionParams
-from .health import overlap_tol_lu as _overlap_tol_lu
+from ..particles.collisions import CollisionParams
 from .pipe import DENSITY_KG_M3, pipe_scene, time_step
 
 #: stated bounds of the invariants
@@ -67,7 +66,7 @@ BOUNDS = {
     "ke_ratio_max": 3.0,  # kinetic energy / Hagen-Poiseuille's at the target Q
     # collisions.py: overlaps are <= overlap_tol right after the collision step and within the
     # model's overlap bound (OVERLAP_BOUND_FACTOR * overlap_tol) between calls
-    "overlap_before_lu": OVERLAP_BOUND_FACTOR * CollisionParams().overlap_tol,
+    "overlap_before_lu": CollisionParams().overlap_bound,
     "wall_clearance_min_lu": -0.1,
 }
 
@@ -345,7 +344,7 @@ def run_case(case: StabilityCase, dx_mm: float, steps: int, work_dir: Path | Non
                    ke_ratio_max=stats["ke"],
                    max_overlap_before_lu=ce["max_overlap_before_lu"] if ce is not None else float("nan"),
                    max_overlap_after_lu=ce["max_overlap_after_lu"] if ce is not None else float("nan"),
-                   overlap_tol_lu=_overlap_tol_lu(ce) if ce is not None else float("nan"),
+                   overlap_tol_lu=ce["overlap_tol_lu"] if ce is not None else float("nan"),
                    impulses=ce["impulses"] if ce is not None else 0,
                    min_wall_clearance_lu=stats["clear"],
                    wall_seconds=time.perf_counter() - t0)
