@@ -137,14 +137,13 @@ def order_rows(values: pd.DataFrame) -> pd.DataFrame:
             row = {"case": case, "observable": obs, "dx_mm": " ".join(f"{x:g}" for x in dx),
                    "status": f"{len(g)} of 3 spacings run"}
             if len(g) == 2:  # the one change there is, and whether it stands out of the noise
-                f, c = g["value"].to_numpy(float), np.nan_to_num(c_all)
+                f, c = g["value"].to_numpy(float), c_all
                 row.update(d1=f[0] - f[1], d1_ci95=math.hypot(c[0], c[1]))
                 row["status"] += (f"; {no_noise}" if unknown else "; the change exceeds its interval"
                                   if abs(row["d1"]) > row["d1_ci95"] else "; the change is within its interval")
             rows.append(row)
             continue
-        f, c = g["value"].to_numpy(float)[:3], c_all[:3]
-        c = np.where(np.isfinite(c), c, 0.0)  # only reached with every interval known
+        f, c = g["value"].to_numpy(float)[:3], c_all[:3]  # an unknown interval stays NaN in d*_ci95
         d1, d2 = f[0] - f[1], f[1] - f[2]
         e1, e2 = math.hypot(c[0], c[1]), math.hypot(c[1], c[2])
         row = {"case": case, "observable": obs, "dx_mm": " ".join(f"{x:g}" for x in dx[:3]),
