@@ -1,7 +1,11 @@
 """Contact geometry (lbmpipe.particles.contact): GJK/EPA gaps, normals and contact points against exact
 values, the pipe and planar walls, and the cell-list broad phase."""
 
+import json
 import math
+import os
+import subprocess
+import sys
 
 import numpy as np
 import pytest
@@ -562,3 +566,82 @@ def test_rim_sample_table_is_bit_identical_to_the_trigonometry_it_replaces():
 
     expect = trig(RIM_SAMPLES)
     assert _RIM_COS.tobytes() == expect[0].tobytes() and _RIM_SIN.tobytes() == expect[1].tobytes()
+
+
+# ------------------------------------------------------------------------------------------------
+# EPA's tables
+
+# Recorded in a production run (244 dense 8 x 8 mm cylinders, dx 1 mm): two cylinders overlapping
+# by 0.012 lu, one's cap on the other's rim. The faces the expansion's new vertex saw there were a
+# patchwork (round-off on the finely sampled curved surfaces), whose boundary held more edges than
+# the face table had room left for: the compiled EPA wrote past the table, and the run died many
+# steps later with a heap corruption.
+_EPA_RECORDED = {
+    "k1": 1, "h1": [4.0, 4.0, 4.0],
+    "x1": [11.417106449870905, -16.826991791689412, 68.62623684114274],
+    "R1": [[0.2428449724236158, 0.8665432476789334, 0.436037979160784],
+           [-0.9437724618837657, 0.1071074887150687, 0.3127643298891477],
+           [0.22432088524796223, -0.487473882134416, 0.8438301693340741]],
+    "k2": 1, "h2": [4.0, 4.0, 4.0],
+    "x2": [14.974198406591656, -14.315203485166196, 75.38592211737362],
+    "R2": [[-0.21640445002018205, 0.7768782174103778, -0.5912946383358608],
+           [-0.5304696791731908, -0.6020099498575562, -0.5968131531311912],
+           [-0.8196163941072401, 0.18451085492668587, 0.5423879708519252]],
+    "scale": 11.313708498984761,
+    "W": [[1.1905073664890473, -2.5926168580868296, 0.35967473324592447],
+          [3.2410389267784154, 5.978498188570635, -4.01000325798006],
+          [-2.7110668392926662, 1.447028586587992, 0.8783490140700678],
+          [-0.10526490040494707, 0.1354106391854888, 0.018162618879216552]],
+    "WA": [[16.7414885636613, -15.789126402913716, 70.23054059702265],
+           [14.235820368235455, -12.177237921752772, 70.18657039376129],
+           [12.87622055065292, -11.789057488315425, 70.7452469864197],
+           [15.459724934099125, -13.076438577867425, 69.8874213562974]],
+    "WB": [[15.550981197172252, -13.196509544826887, 69.87086586377673],
+           [10.99478144145704, -18.155736110323407, 74.19657365174135],
+           [15.587287389945587, -13.236086074903417, 69.86689797234963],
+           [15.564989834504072, -13.211849217052913, 69.86925873741818]],
+    "n": 4,
+}
+
+_EPA_RUN = """
+import json, sys
+import numpy as np
+import lbmpipe.particles.contact.epa as E
+d = json.loads(sys.argv[1])
+def run(max_faces):
+    E.EPA_MAX_FACES = max_faces
+    nrm, pa, pb = np.empty(3), np.empty(3), np.empty(3)
+    depth = E._epa(d["k1"], np.array(d["h1"]), np.array(d["x1"]), np.array(d["R1"]), d["k2"], np.array(d["h2"]),
+                   np.array(d["x2"]), np.array(d["R2"]), d["scale"], np.array(d["W"]), np.array(d["WA"]),
+                   np.array(d["WB"]), d["n"], nrm, pa, pb)
+    return [depth, nrm.tolist(), pa.tolist(), pb.tolist()]
+print(json.dumps({"table": run(E.EPA_MAX_FACES), "large": run(16 * E.EPA_MAX_FACES)}))
+"""
+
+
+def _epa_recorded(nrm, pa, pb):
+    from lbmpipe.particles.contact.epa import _epa
+    d = _EPA_RECORDED
+    a = {k: (np.array(v) if isinstance(v, list) else v) for k, v in d.items()}
+    return _epa(a["k1"], a["h1"], a["x1"], a["R1"], a["k2"], a["h2"], a["x2"], a["R2"], a["scale"], a["W"], a["WA"],
+                a["WB"], a["n"], nrm, pa, pb)
+
+
+def test_epa_on_a_patchwork_horizon_stays_within_its_face_table_and_finds_the_cap_depth():
+    """Run as plain Python (every index checked), EPA on the recorded pair neither writes past its
+    face table nor answers differently from a table 16 times larger; compiled, it gives the same
+    depth and normal. The depth is the cap's: along cylinder 1's axis."""
+    env = {**os.environ, "NUMBA_DISABLE_JIT": "1"}
+    out = subprocess.run([sys.executable, "-c", _EPA_RUN, json.dumps(_EPA_RECORDED)], env=env, capture_output=True,
+                         text=True, timeout=300)
+    assert out.returncode == 0, out.stderr[-2000:]
+    res = json.loads(out.stdout.strip().splitlines()[-1])
+    depth, nrm = res["table"][0], np.array(res["table"][1])
+    assert res["table"] == res["large"]
+    assert 0.005 < depth < 0.02
+    axis = np.array(_EPA_RECORDED["R1"])[:, 2]
+    assert abs(abs(nrm @ axis) - 1.0) < 1e-6
+    nrm_c, pa_c, pb_c = np.empty(3), np.empty(3), np.empty(3)
+    depth_c = _epa_recorded(nrm_c, pa_c, pb_c)
+    assert depth_c == pytest.approx(depth, rel=1e-6)
+    np.testing.assert_allclose(nrm_c, nrm, atol=1e-6)

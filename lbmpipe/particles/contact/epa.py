@@ -203,7 +203,7 @@ def _epa(k1, h1, x1, R1, k2, h2, x2, R2, scale, W, WA, WB, n, nrm, pa, pb):
     sa = np.empty(3)
     sb = np.empty(3)
     edges = np.empty((3 * EPA_MAX_FACES, 2), dtype=np.int64)
-    best = 0
+    bn = np.empty(3)
     while True:
         best = -1
         bd = 1e301
@@ -213,38 +213,27 @@ def _epa(k1, h1, x1, R1, k2, h2, x2, R2, scale, W, WA, WB, n, nrm, pa, pb):
                 best = f
         if best < 0:
             return -1.0
+        # the closest face, kept aside: the answer if the expansion stops here (the table moves)
+        fa = F[best, 0]
+        fb = F[best, 1]
+        fc = F[best, 2]
         for k in range(3):
             d[k] = FN[best, k]
+            bn[k] = d[k]
         _support_lab(k1, h1, x1, R1, False, d, sa)
         for k in range(3):
             d[k] = -d[k]
         _support_lab(k2, h2, x2, R2, False, d, sb)
-        sd = (sa[0] - sb[0]) * FN[best, 0] + (sa[1] - sb[1]) * FN[best, 1] + (sa[2] - sb[2]) * FN[best, 2]
+        sd = (sa[0] - sb[0]) * bn[0] + (sa[1] - sb[1]) * bn[1] + (sa[2] - sb[2]) * bn[2]
         if sd - bd <= tol or nv >= EPA_MAX_VERTS:
             break
-        # compact dead faces if the face table is getting full
-        if nf + nv + 1 > EPA_MAX_FACES:
-            m = 0
-            for f in range(nf):
-                if alive[f]:
-                    if m != f:
-                        F[m] = F[f]
-                        FN[m] = FN[f]
-                        FD[m] = FD[f]
-                    alive[m] = True
-                    m += 1
-            for f in range(m, nf):
-                alive[f] = False
-            nf = m
-            if nf + nv + 1 > EPA_MAX_FACES:
-                break
-            continue
         iv = nv
         for k in range(3):
             V[iv, k] = sa[k] - sb[k]
             VA[iv, k] = sa[k]
             VB[iv, k] = sb[k]
         nv += 1
+        # the faces the new vertex sees die; the edges of their boundary (the horizon) get new faces
         ne = 0
         for f in range(nf):
             if not alive[f]:
@@ -269,18 +258,36 @@ def _epa(k1, h1, x1, R1, k2, h2, x2, R2, scale, W, WA, WB, n, nrm, pa, pb):
                         edges[ne, 0] = ea
                         edges[ne, 1] = eb
                         ne += 1
+        # On a convex polytope the horizon is one loop of at most nv edges, but round-off on a
+        # curved surface sampled this finely can make the visible faces a patchwork with many
+        # more: the table is checked against ne itself, never against a count it may exceed.
+        if nf + ne > EPA_MAX_FACES:
+            m = 0  # drop the dead faces, keeping the order of the live ones
+            for f in range(nf):
+                if alive[f]:
+                    if m != f:
+                        F[m] = F[f]
+                        FN[m] = FN[f]
+                        FD[m] = FD[f]
+                    alive[m] = True
+                    m += 1
+            for f in range(m, nf):
+                alive[f] = False
+            nf = m
+            if nf + ne > EPA_MAX_FACES:
+                break  # no room: the closest face found so far stands
         for r in range(ne):
             _epa_face(V, F, FN, FD, nf, edges[r, 0], edges[r, 1], iv, scale)
             alive[nf] = True
             nf += 1
     # witness points from the barycentric coordinates of the origin's projection on the face
-    depth = FD[best]
-    a = F[best, 0]
-    b = F[best, 1]
-    c = F[best, 2]
-    px = depth * FN[best, 0]
-    py = depth * FN[best, 1]
-    pz = depth * FN[best, 2]
+    depth = bd
+    a = fa
+    b = fb
+    c = fc
+    px = depth * bn[0]
+    py = depth * bn[1]
+    pz = depth * bn[2]
     v0x = V[b, 0] - V[a, 0]
     v0y = V[b, 1] - V[a, 1]
     v0z = V[b, 2] - V[a, 2]
@@ -305,7 +312,7 @@ def _epa(k1, h1, x1, R1, k2, h2, x2, R2, scale, W, WA, WB, n, nrm, pa, pb):
         lc = min(1.0 - lb, max(0.0, lc))
     la = 1.0 - lb - lc
     for k in range(3):
-        nrm[k] = FN[best, k]
+        nrm[k] = bn[k]
         pa[k] = la * VA[a, k] + lb * VA[b, k] + lc * VA[c, k]
         pb[k] = la * VB[a, k] + lb * VB[b, k] + lc * VB[c, k]
     return max(depth, 0.0)
