@@ -106,6 +106,17 @@ def versions() -> dict:
             "numba": numba.__version__, "scipy": scipy.__version__, "pandas": pd.__version__}
 
 
+def host() -> dict:
+    """The processor the kernels are compiled for, by LLVM's name (``znver4``, ``skylake-avx512``:
+    it sets their vector width, and with it the fluid step's cost per node), and the cores the
+    machine offers. The run-cost model keeps the runs of each processor apart
+    (``lbmpipe.reproduction.runcost``). No host name."""
+    import llvmlite.binding as ll
+    import numba
+
+    return {"cpu": str(numba.config.CPU_NAME or ll.get_host_cpu_name()), "cores": os.cpu_count()}
+
+
 def git_commit() -> str | None:
     """Commit of the source tree the package runs from, with ``-dirty`` if it has changes. The
     generated ``results/`` and ``paper/`` do not count: a pipeline that rewrites the committed
@@ -166,6 +177,7 @@ def write_summary(out_dir: Path, summary: dict, scene, params) -> Path:
     doc["lattice"] = _jsonable(params)
     doc["versions"] = versions()
     doc["git_commit"] = git_commit()
+    doc["host"] = host()
     path = Path(out_dir) / SUMMARY
     tmp = path.with_suffix(".json.tmp")
     tmp.write_text(json.dumps(_jsonable(doc), indent=2, sort_keys=False) + "\n")

@@ -38,7 +38,7 @@ def test_run_writes_documented_outputs_and_reaches_poiseuille_profile(tmp_path):
     assert res.returncode == 0, res.stderr
     summary = json.loads((out / "summary.json").read_text())
     for key in ("status", "steps", "wall_seconds", "mlups", "mass_drift_rel", "effects", "scene", "lattice",
-                "versions", "git_commit", "profile_error_rel_l2", "flow_rate_m3_s"):
+                "versions", "git_commit", "host", "profile_error_rel_l2", "flow_rate_m3_s"):
         assert key in summary, key
     assert summary["status"] == "completed"
     assert summary["lattice"]["tau"] > 0.5 and "mach_max" in summary["lattice"]
