@@ -134,14 +134,20 @@ def format_report(scene: Scene, params: LatticeParams, source: str = "", cost_mo
 def _predicted_text(scene: Scene, params: LatticeParams, model: dict, path: str) -> str:
     """The cost model's wall-time prediction with the error it was validated to."""
     if "s_per_step" in model:  # wall-time model of a level's production runs
-        from .reproduction.runcost import predict_scene
+        from .outputs import host
+        from .reproduction.runcost import for_host, predict_scene
 
-        err, err_med = model.get("median_abs_rel_error", float("nan")), model.get("median_abs_rel_error_median_share", float("nan"))
-        share = float(model.get("median_cpu_share", 1.0))
-        text = (f"{_duration(predict_scene(model, scene, params))} wall with a core per thread of its own, "
-                f"{_duration(predict_scene(model, scene, params, share))} with the {share:.2f} of a core the production "
-                f"runs got  (median error {100 * err:.0f} % given a run's share, {100 * err_med:.0f} % at the median share, "
-                f"on {model.get('n_validated', 0)} production runs held out of the fit, on the host that ran them: {path})")
+        cpu = host()["cpu"]
+        used, own = for_host(model, cpu)
+        err, err_med = used.get("median_abs_rel_error", float("nan")), used.get("median_abs_rel_error_median_share", float("nan"))
+        share = float(used.get("median_cpu_share", 1.0))
+        runs = (f"{used.get('n_validated', 0)} production runs on this processor ({cpu}) held out of the fit" if own else
+                f"{used.get('n_validated', 0)} production runs held out of the fit; none on this processor ({cpu}), whose "
+                f"fluid step may cost another time per node")
+        text = (f"{_duration(predict_scene(model, scene, params, host=cpu))} wall with a core per thread of its own, "
+                f"{_duration(predict_scene(model, scene, params, share, host=cpu))} with the {share:.2f} of a core the "
+                f"production runs got  (median error {100 * err:.0f} % given a run's share, {100 * err_med:.0f} % at the "
+                f"median share, on {runs}: {path})")
         if (scene.run.threads or 1) not in model.get("threads_measured", [1]):
             text += f"; not validated at {scene.run.threads} threads"
         return text

@@ -170,3 +170,64 @@ def test_a_cluster_time_limit_follows_the_wall_time_model_and_never_falls_below_
     assert slow > without and slow >= 1.5 * 80
     path.write_text(json.dumps({**model, **{k: 0.0 for k in model if k.startswith("s_per")}, "intercept_s": 0.0}))
     assert cases.estimate_minutes(config, "credible", "cyl16x16_c30_re26/seed1", root) == without
+
+
+def test_each_processor_is_predicted_from_its_own_runs_and_unrecorded_runs_from_all(tmp_path):
+    # the fluid step costs 2.3 times less per node on processor "fast": validated within their own
+    # processor, both processors' runs are predicted exactly; pooled, neither would be
+    runs = {}
+    specs = {"slow": ["flow_re9.4", "cube16_c30_re9.4/seed1", "cyl8x8_c30_re9.4/seed1"],
+             "fast": ["flow_re26", "cube16_c30_re9.4/seed2", "cyl8x8_c30_re9.4/seed2"]}
+    for cpu, scale in (("slow", 1.0), ("fast", 1.0 / 2.3)):
+        for k, (run, links, count) in enumerate(zip(specs[cpu], (0, 110000, 220000), (0, 14, 146))):
+            s = _summary(1000 * (k + 1), links=links, count=count)
+            for name in s["effects"]:
+                if name.startswith("stream+collide"):
+                    s["effects"][name] *= scale
+            s["wall_seconds"] = sum(s["effects"].values()) + STEP * s["steps"]
+            s["host"] = {"cpu": cpu, "cores": 2}
+            runs[run] = (s, s["wall_seconds"] + SETUP)
+    legacy = _summary(2500, links=150000, count=40)  # a run from before the processor was recorded
+    runs["cyl16x16_c30_re9.4/seed1"] = (legacy, legacy["wall_seconds"] + SETUP)
+    names = _write_level(tmp_path, runs)
+    model, val = runcost.build(tmp_path, names, "test")
+    recorded = val[val["host"] != runcost.UNRECORDED]
+    assert (recorded["fitted_host"] == recorded["host"]).all()
+    assert np.allclose(recorded["rel_error"], 0.0, atol=1e-9)
+    old = val[val["host"] == runcost.UNRECORDED]
+    assert (old["fitted_host"] == "all").all() and (old["fitted_on"] == 6).all()
+    assert set(model["hosts"]) == {"slow", "fast"} and model["runs_by_host"][runcost.UNRECORDED] == 1
+    assert model["hosts"]["fast"]["s_per_node_update"] == pytest.approx(NODE * (0.9 / 2.3 + 0.1))
+    assert model["hosts"]["slow"]["s_per_node_update"] == pytest.approx(NODE)
+    assert model["hosts"]["fast"]["median_abs_rel_error"] == pytest.approx(0.0, abs=1e-9)
+    # a prediction for a processor the model knows uses its coefficients; an unknown one, all runs'
+    own, is_own = runcost.for_host(model, "fast")
+    assert is_own and own["s_per_node_update"] == model["hosts"]["fast"]["s_per_node_update"]
+    pooled, is_own = runcost.for_host(model, "another")
+    assert not is_own and pooled["s_per_node_update"] == model["s_per_node_update"]
+
+
+def test_lbmpipe_check_predicts_from_the_runs_of_its_own_processor(tmp_path, capsys):
+    from pathlib import Path
+
+    from lbmpipe.cli import _duration, run_cli
+    from lbmpipe.outputs import host
+    from lbmpipe.scene import load_scene
+    from lbmpipe.units import derive
+
+    base = {"intercept_s": 2.0, "s_per_step": 5e-4, "s_per_node_update": 5e-8, "s_per_link_update": 5e-8,
+            "s_per_particle_step": 1e-5, "median_abs_rel_error": 0.3, "median_abs_rel_error_median_share": 0.4,
+            "n_validated": 30, "threads_measured": [1], "links_per_area_lu": 5.0, "median_cpu_share": 0.8}
+    here = {"intercept_s": 2.0, "s_per_step": 5e-4, "s_per_node_update": 2e-8, "s_per_link_update": 5e-8,
+            "s_per_particle_step": 1e-5, "median_abs_rel_error": 0.07, "median_abs_rel_error_median_share": 0.09,
+            "n_validated": 9, "median_cpu_share": 0.9}
+    mpath = tmp_path / "cost_model.json"
+    mpath.write_text(json.dumps({**base, "hosts": {host()["cpu"]: here}}))
+    scene = Path(__file__).resolve().parents[1] / "scenes" / "pipe_re9.4.yaml"
+    params = derive(load_scene(scene))
+    assert run_cli(["check", str(scene), "--cost-model", str(mpath)]) == 0
+    line = next(ln for ln in capsys.readouterr().out.splitlines() if "predicted run time" in ln)
+    threads = load_scene(scene).run.threads or 1
+    expected = 2.0 + params.n_steps * (2e-8 * params.fluid_nodes + 5e-4) / threads
+    assert _duration(expected) in line and _duration(expected / 0.9) in line
+    assert "median error 7 % given a run's share, 9 % at the median share, on 9 production runs on this processor" in line

@@ -478,8 +478,18 @@ def runtime_section(fid_dir: Path, fidelity: str) -> dict:
                         "ns_link": fmt(1e9 * model.get("s_per_link_update", 0.0)),
                         "us_particle": fmt(1e6 * model.get("s_per_particle_step", 0.0)),
                         "ms_step": fmt(1e3 * model.get("s_per_step", 0.0)), "intercept_s": fmt(model.get("intercept_s")),
-                        "table": table_of(val, ["run", "family", "steps", "particles", "links", "wall_s", "predicted_s",
-                                                "rel_error", "cpu_share", "rel_error_median_share"]) if val is not None and len(val) else None}
+                        "hosts": [{"cpu": cpu, "n_runs": fmt(h.get("n_runs")), "families": fmt(h.get("families")),
+                                   "n_validated": fmt(h.get("n_validated")),
+                                   "ns_node": fmt(1e9 * h.get("s_per_node_update", 0.0)),
+                                   "median_pct": fmt(100 * float(h.get("median_abs_rel_error", float("nan")))),
+                                   "median_share_pct": fmt(100 * float(h.get("median_abs_rel_error_median_share",
+                                                                             float("nan"))))}
+                                  for cpu, h in sorted((model.get("hosts") or {}).items())],
+                        "unrecorded": fmt((model.get("runs_by_host") or {}).get("unrecorded", 0)),
+                        "table": table_of(val, ["run", "family", "host", "steps", "particles", "links", "wall_s",
+                                                "predicted_s", "rel_error", "cpu_share", "rel_error_median_share",
+                                                "fitted_host"])
+                        if val is not None and len(val) else None}
     if df is not None:
         d = df.copy()
         if "wall_s" in d:

@@ -26,6 +26,14 @@ accumulated seconds plus set-up, with the median share. The production runs are 
 dividing by ``threads`` assumes ideal scaling and is not validated here (``benchmarks/fluid.py``
 measures the thread scaling).
 
+Runs are kept apart by processor (``summary.json`` ``host.cpu``, the processor the kernels were
+compiled for): the vectorised fluid step costs a processor-dependent time per node that no share
+of a core accounts for. Each processor with runs of its own gets its own coefficients (``hosts``),
+and a run of such a processor is validated against the other families' runs of that processor
+alone; runs that record no processor (made before the field existed) form the group
+``unrecorded``, validated against every other family's runs. The top-level coefficients are
+fitted to all runs (what a processor without runs of its own is predicted from).
+
 Validation is leave-one-family-out: a family is a case with its Reynolds numbers and seeds
 (``cyl8x16_c30`` holds ``cyl8x16_c30_re9.4/seed1`` ... ``cyl8x16_c30_re26/seed3``), so a run is
 never predicted by a model fitted to another seed or the other Reynolds number of its own
@@ -51,7 +59,9 @@ GROUPS = {"fluid": ("stream+collide", "wall", "flow-rate"), "particles": ("parti
 #: the work each group is charged to, and the model's coefficient for it
 WORK = {"fluid": ("nodes", "s_per_node_update"), "particles": ("links", "s_per_link_update"),
         "collisions": ("particles", "s_per_particle_step")}
-COLUMNS = ["run", "family", "steps", "threads", "nodes", "links", "particles", "wall_s", "loop_s", "fluid_s",
+#: the processor group of a run that records none
+UNRECORDED = "unrecorded"
+COLUMNS = ["run", "family", "host", "steps", "threads", "nodes", "links", "particles", "wall_s", "loop_s", "fluid_s",
            "particles_s", "collisions_s", "rest_s", "overhead_s", "resumed", "cpu_share", "links_per_area_lu"]
 
 
@@ -74,7 +84,8 @@ def run_row(run: str, summary: dict, bench_s: float = float("nan")) -> dict | No
     part = summary.get("particles") or {}
     resumed = not (math.isfinite(bench_s) and bench_s >= loop)
     wall = loop + setup if resumed else float(bench_s)
-    return {"run": run, "family": family(run), "steps": int(summary["steps"]),
+    cpu = (summary.get("host") or {}).get("cpu") if isinstance(summary.get("host"), dict) else None
+    return {"run": run, "family": family(run), "host": str(cpu) if cpu else UNRECORDED, "steps": int(summary["steps"]),
             "threads": int(summary.get("threads") or 1), "nodes": int(summary.get("fluid_nodes") or 0),
             "links": int(part.get("links") or 0), "particles": int(part.get("count") or 0),
             "wall_s": wall, "loop_s": loop, **{f"{g}_s": v for g, v in groups.items()},
@@ -146,19 +157,32 @@ def predict(model: dict, steps, nodes, links=0.0, particles=0.0, threads=1, shar
     return (model["intercept_s"] + np.asarray(steps, float) * per_step / t) / np.asarray(share, float)
 
 
+def _training(rows: pd.DataFrame, fam: str, host: str) -> tuple[pd.DataFrame, str]:
+    """The runs that predict family ``fam``'s runs on processor ``host``: the other families' runs
+    of that processor if it is recorded and has any, else every other family's runs ("all")."""
+    other = rows["family"] != fam
+    if host != UNRECORDED:
+        same = other & (rows["host"] == host)
+        if same.any():
+            return rows[same], host
+    return rows[other], "all"
+
+
 def validate(rows: pd.DataFrame) -> pd.DataFrame:
     """Leave-one-family-out predictions: each run predicted by the model fitted to the other
-    families' runs, at the run's measured share (``predicted_s``, ``rel_error`` = predicted /
-    measured - 1) and at the other families' median share (``predicted_median_share_s``,
-    ``rel_error_median_share``); ``fitted_on``: runs in that fit. NaN where no other family exists."""
+    families' runs (of its own processor where it records one that has others, ``fitted_host``),
+    at the run's measured share (``predicted_s``, ``rel_error`` = predicted / measured - 1) and at
+    those runs' median share (``predicted_median_share_s``, ``rel_error_median_share``);
+    ``fitted_on``: runs in that fit. NaN where no other family exists."""
     out = rows.copy()
     share = _shares(rows)
     for c in ("predicted_s", "rel_error", "predicted_median_share_s", "rel_error_median_share"):
         out[c] = np.nan
     out["fitted_on"] = 0
-    for fam in rows["family"].unique():
-        held = rows["family"] == fam
-        train = rows[~held]
+    out["fitted_host"] = ""
+    for (fam, host), held_rows in rows.groupby(["family", "host"], sort=False):
+        held = rows.index.isin(held_rows.index)
+        train, fitted_host = _training(rows, fam, host)
         if not len(train):
             continue
         m = fit(train)
@@ -167,9 +191,20 @@ def validate(rows: pd.DataFrame) -> pd.DataFrame:
         out.loc[held, "predicted_s"] = predict(*args, share=share[held])
         out.loc[held, "predicted_median_share_s"] = predict(*args, share=m["median_cpu_share"])
         out.loc[held, "fitted_on"] = len(train)
+        out.loc[held, "fitted_host"] = fitted_host
     out["rel_error"] = out["predicted_s"] / rows["wall_s"] - 1.0
     out["rel_error_median_share"] = out["predicted_median_share_s"] / rows["wall_s"] - 1.0
     return out
+
+
+def _errors(val: pd.DataFrame) -> dict:
+    err = val["rel_error"].abs().dropna()
+    err_med = val["rel_error_median_share"].abs().dropna()
+    return {"n_validated": int(len(err)),
+            "median_abs_rel_error": float(err.median()) if len(err) else float("nan"),
+            "max_abs_rel_error": float(err.max()) if len(err) else float("nan"),
+            "median_abs_rel_error_median_share": float(err_med.median()) if len(err_med) else float("nan"),
+            "max_abs_rel_error_median_share": float(err_med.max()) if len(err_med) else float("nan")}
 
 
 def build(level_dir: Path, runs: list[str], level: str) -> tuple[dict, pd.DataFrame]:
@@ -178,22 +213,27 @@ def build(level_dir: Path, runs: list[str], level: str) -> tuple[dict, pd.DataFr
     rows = level_rows(level_dir, runs)
     model = fit(rows)
     val = validate(rows)
-    err = val["rel_error"].abs().dropna()
-    err_med = val["rel_error_median_share"].abs().dropna()
     model.update({
         "level": level, "target": "wall_s (Snakemake benchmark; loop + set-up for a resumed run)",
-        "validation": "leave one case family out (both Reynolds numbers and every seed of a case held out together)",
+        "validation": "leave one case family out (both Reynolds numbers and every seed of a case held out together),"
+                      " against the other families' runs of the same processor where the run records one",
         "families": int(rows["family"].nunique()) if len(rows) else 0,
-        "n_validated": int(len(err)),
-        "median_abs_rel_error": float(err.median()) if len(err) else float("nan"),
-        "max_abs_rel_error": float(err.max()) if len(err) else float("nan"),
-        "median_abs_rel_error_median_share": float(err_med.median()) if len(err_med) else float("nan"),
-        "max_abs_rel_error_median_share": float(err_med.max()) if len(err_med) else float("nan"),
+        **_errors(val),
         "threads_measured": sorted(int(t) for t in rows["threads"].unique()) if len(rows) else [],
         # the median measured boundary links per particle surface area over the runs with particles
         "links_per_area_lu": float(rows["links_per_area_lu"].median()) if rows["links_per_area_lu"].notna().any()
         else float("nan"),
     })
+    # each recorded processor's own coefficients, and the validation of its runs
+    hosts = {}
+    for host, hrows in rows.groupby("host", sort=True):
+        if host == UNRECORDED:
+            continue
+        hm = fit(hrows)
+        hm.pop("formula", None)
+        hosts[host] = {**hm, "families": int(hrows["family"].nunique()), **_errors(val[val["host"] == host])}
+    model["hosts"] = hosts
+    model["runs_by_host"] = {str(h): int(n) for h, n in rows["host"].value_counts().sort_index().items()}
     return model, val
 
 
@@ -206,11 +246,19 @@ def write(level_dir: Path, runs: list[str], level: str, model_path: Path, table_
     return model
 
 
-def predict_scene(model: dict, scene, params, share: float = 1.0) -> float:
+def for_host(model: dict, host: str | None) -> tuple[dict, bool]:
+    """The coefficients that predict a run on processor ``host``: its own (``model["hosts"]``)
+    if the model has runs of it, else the fit to all runs. Returns (model, own)."""
+    own = (model.get("hosts") or {}).get(host) if host else None
+    return ({**model, **own}, True) if own else (model, False)
+
+
+def predict_scene(model: dict, scene, params, share: float = 1.0, host: str | None = None) -> float:
     """Predicted wall seconds of a validated ``Scene`` with lattice parameters ``params``, with
-    ``share`` of a core per thread: the particles' links estimated from their surface area
-    (``links_per_area_lu`` of the model), their count as the packer or random placement would
-    make it."""
+    ``share`` of a core per thread, on processor ``host`` (:func:`for_host`; None: from all runs):
+    the particles' links estimated from their surface area (``links_per_area_lu`` of the model),
+    their count as the packer or random placement would make it."""
+    model, _own = for_host(model, host)
     count, area_mm2 = scene_particle_load(scene)
     lpa = model.get("links_per_area_lu")
     lpa = float(lpa) if lpa is not None and math.isfinite(float(lpa)) else D3Q15_LINKS_PER_AREA
