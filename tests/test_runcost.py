@@ -97,16 +97,13 @@ def test_work_divides_over_threads_in_the_prediction():
     assert two - 2.0 == pytest.approx((one - 2.0) / 2)
 
 
-def test_lbmpipe_check_prints_the_wall_time_prediction_with_its_validated_error(tmp_path, capsys):
-    from pathlib import Path
-
-    from lbmpipe.cli import _duration, run_cli
+def _check_line(tmp_path, capsys, model: dict, ns_per_node: float):
+    """``lbmpipe check``'s prediction line for the pipe scene under ``model``, and the wall seconds
+    a model of ``ns_per_node`` per fluid node (2 s set-up, 0.5 ms a step) gives with a core of its own."""
+    from lbmpipe.cli import run_cli
     from lbmpipe.scene import load_scene
     from lbmpipe.units import derive
 
-    model = {"intercept_s": 2.0, "s_per_step": 5e-4, "s_per_node_update": 5e-8, "s_per_link_update": 5e-8,
-             "s_per_particle_step": 1e-5, "median_abs_rel_error": 0.083, "median_abs_rel_error_median_share": 0.121,
-             "n_validated": 21, "threads_measured": [1], "links_per_area_lu": 5.0, "median_cpu_share": 0.8}
     mpath = tmp_path / "cost_model.json"
     mpath.write_text(json.dumps(model))
     scene = Path(__file__).resolve().parents[1] / "scenes" / "pipe_re9.4.yaml"
@@ -114,10 +111,19 @@ def test_lbmpipe_check_prints_the_wall_time_prediction_with_its_validated_error(
     assert run_cli(["check", str(scene), "--cost-model", str(mpath)]) == 0
     line = next(ln for ln in capsys.readouterr().out.splitlines() if "predicted run time" in ln)
     threads = load_scene(scene).run.threads or 1
-    expected = 2.0 + params.n_steps * (5e-8 * params.fluid_nodes + 5e-4) / threads
+    return line, 2.0 + params.n_steps * (ns_per_node * 1e-9 * params.fluid_nodes + 5e-4) / threads
+
+
+def test_lbmpipe_check_prints_the_wall_time_prediction_with_its_validated_error(tmp_path, capsys):
+    from lbmpipe.cli import _duration
+
+    model = {"intercept_s": 2.0, "s_per_step": 5e-4, "s_per_node_update": 5e-8, "s_per_link_update": 5e-8,
+             "s_per_particle_step": 1e-5, "median_abs_rel_error": 0.083, "median_abs_rel_error_median_share": 0.121,
+             "n_validated": 21, "threads_measured": [1], "links_per_area_lu": 5.0, "median_cpu_share": 0.8}
+    line, expected = _check_line(tmp_path, capsys, model, 50.0)
     assert _duration(expected) in line and _duration(expected / 0.8) in line
     assert "median error 8 % given a run's share, 12 % at the median share, on 21 production runs held out" in line
-    assert str(mpath) in line
+    assert str(tmp_path / "cost_model.json") in line
 
 
 def test_validation_table_and_model_are_written_beside_the_level_tables(tmp_path):
@@ -208,12 +214,8 @@ def test_each_processor_is_predicted_from_its_own_runs_and_unrecorded_runs_from_
 
 
 def test_lbmpipe_check_predicts_from_the_runs_of_its_own_processor(tmp_path, capsys):
-    from pathlib import Path
-
-    from lbmpipe.cli import _duration, run_cli
+    from lbmpipe.cli import _duration
     from lbmpipe.outputs import host
-    from lbmpipe.scene import load_scene
-    from lbmpipe.units import derive
 
     base = {"intercept_s": 2.0, "s_per_step": 5e-4, "s_per_node_update": 5e-8, "s_per_link_update": 5e-8,
             "s_per_particle_step": 1e-5, "median_abs_rel_error": 0.3, "median_abs_rel_error_median_share": 0.4,
@@ -221,13 +223,6 @@ def test_lbmpipe_check_predicts_from_the_runs_of_its_own_processor(tmp_path, cap
     here = {"intercept_s": 2.0, "s_per_step": 5e-4, "s_per_node_update": 2e-8, "s_per_link_update": 5e-8,
             "s_per_particle_step": 1e-5, "median_abs_rel_error": 0.07, "median_abs_rel_error_median_share": 0.09,
             "n_validated": 9, "median_cpu_share": 0.9}
-    mpath = tmp_path / "cost_model.json"
-    mpath.write_text(json.dumps({**base, "hosts": {host()["cpu"]: here}}))
-    scene = Path(__file__).resolve().parents[1] / "scenes" / "pipe_re9.4.yaml"
-    params = derive(load_scene(scene))
-    assert run_cli(["check", str(scene), "--cost-model", str(mpath)]) == 0
-    line = next(ln for ln in capsys.readouterr().out.splitlines() if "predicted run time" in ln)
-    threads = load_scene(scene).run.threads or 1
-    expected = 2.0 + params.n_steps * (2e-8 * params.fluid_nodes + 5e-4) / threads
+    line, expected = _check_line(tmp_path, capsys, {**base, "hosts": {host()["cpu"]: here}}, 20.0)
     assert _duration(expected) in line and _duration(expected / 0.9) in line
     assert "median error 7 % given a run's share, 9 % at the median share, on 9 production runs on this processor" in line
