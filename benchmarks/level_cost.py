@@ -21,6 +21,7 @@ import yaml
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from lbmpipe.outputs import host  # noqa: E402
 from lbmpipe.reproduction import runcost  # noqa: E402
 from lbmpipe.reproduction.health import read_json  # noqa: E402
 from lbmpipe.reproduction.cases import case_scene, level_runs, run_case, split_run  # noqa: E402
@@ -53,6 +54,8 @@ def main(argv=None) -> int:
         model, _ = runcost.build(Path(args.results) / base, level_runs(config, base), base)
         print(f"(level {level} has {len(done)} runs: predicting with level {base}'s cost model)")
 
+    cpu = host()["cpu"]
+    used, own = runcost.for_host(model, cpu)  # this processor's coefficients if the model has runs of it
     rows, unpackable, own_core = [], [], {}
     for r in runs:
         if _status(level_dir, r) == "unpackable" or _status(Path(args.results) / "paper", split_run(r)[0]) == "unpackable":
@@ -60,17 +63,20 @@ def main(argv=None) -> int:
             continue
         sc = _scene(config, level, r)
         params = derive(sc)
-        own_core[r] = runcost.predict_scene(model, sc, params, 1.0)
+        own_core[r] = runcost.predict_scene(model, sc, params, 1.0, host=cpu)
         if r in done:
             rows.append((r, params.n_steps, float(done[r]), "measured"))
         else:
-            share = model.get("median_cpu_share", 1.0)  # under the conditions of the runs measured here
-            rows.append((r, params.n_steps, runcost.predict_scene(model, sc, params, share), "cost model"))
+            share = used.get("median_cpu_share", 1.0)  # under the conditions of the runs measured here
+            rows.append((r, params.n_steps, runcost.predict_scene(model, sc, params, share, host=cpu), "cost model"))
 
     print(f"level {level}: {len(runs)} runs, {len(done)} done here; cost model fitted to {model['n_runs']} runs, "
           f"median error {100 * model['median_abs_rel_error_median_share']:.1f} % at the median share of a core "
           f"{model['median_cpu_share']:.2f} ({100 * model['median_abs_rel_error']:.1f} % given each run's share) "
           f"over {model['n_validated']} runs predicted with their family held out")
+    print(f"predictions for this processor ({cpu}): " + (
+        f"its own coefficients, {used['n_runs']} runs, median error {100 * used['median_abs_rel_error']:.1f} % given "
+        f"each run's share over {used['n_validated']} runs" if own else "no run of it here, the fit to all runs"))
     print(f"{'run':40s} {'steps':>8s} {'s/step':>8s} {'minutes':>8s}  source")
     for r, n, wall, src in rows:
         print(f"{r:40s} {n:8d} {wall / n:8.4f} {wall / 60:8.1f}  {src}")
