@@ -29,7 +29,9 @@ Narrow phase (``body_contact``)
   smallest translation of body 2 that separates them.
 - signed gap: ``+distance`` when separated, ``-depth`` when overlapping. Accuracy: GJK stops when
   the gap is bracketed to ``1e-9`` of the body size, EPA when its support gap is below ``1e-7``
-  of the body size or at ``EPA_MAX_VERTS`` vertices (curved surfaces converge slowly in EPA).
+  of the body size, at ``EPA_MAX_VERTS`` vertices (curved surfaces converge slowly in EPA) or
+  when its face table (``EPA_MAX_FACES``) cannot hold a step's new faces, with the closest face
+  found so far.
   Against an independent separating-axis maximisation the signed gap agrees to ``1e-5`` (tests,
   bodies of size ~2-4). On curved surfaces the normal is less accurate than the gap (an error
   ``e`` in the gap allows ~``sqrt(e * curvature radius)`` in the normal: ~1e-4 rad here).
