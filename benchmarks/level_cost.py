@@ -76,7 +76,9 @@ def main(argv=None) -> int:
           f"over {model['n_validated']} runs predicted with their family held out")
     print(f"predictions for this processor ({cpu}): " + (
         f"its own coefficients, {used['n_runs']} runs, median error {100 * used['median_abs_rel_error']:.1f} % given "
-        f"each run's share over {used['n_validated']} runs" if own else "no run of it here, the fit to all runs"))
+        f"each run's share over {used['n_validated']} runs" if own else
+        f"{(model.get('runs_by_host') or {}).get(cpu, 0)} runs of it here, too few families to validate its own "
+        "coefficients: the fit to all runs"))
     print(f"{'run':40s} {'steps':>8s} {'s/step':>8s} {'minutes':>8s}  source")
     for r, n, wall, src in rows:
         print(f"{r:40s} {n:8d} {wall / n:8.4f} {wall / 60:8.1f}  {src}")

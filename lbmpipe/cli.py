@@ -141,9 +141,10 @@ def _predicted_text(scene: Scene, params: LatticeParams, model: dict, path: str)
         used, own = for_host(model, cpu)
         err, err_med = used.get("median_abs_rel_error", float("nan")), used.get("median_abs_rel_error_median_share", float("nan"))
         share = float(used.get("median_cpu_share", 1.0))
+        here = int((model.get("runs_by_host") or {}).get(cpu, 0))
         runs = (f"{used.get('n_validated', 0)} production runs on this processor ({cpu}) held out of the fit" if own else
-                f"{used.get('n_validated', 0)} production runs held out of the fit; none on this processor ({cpu}), whose "
-                f"fluid step may cost another time per node")
+                f"{used.get('n_validated', 0)} production runs held out of the fit; {here} on this processor ({cpu}), too "
+                f"few families to validate its own coefficients, and its fluid step may cost another time per node")
         text = (f"{_duration(predict_scene(model, scene, params, host=cpu))} wall with a core per thread of its own, "
                 f"{_duration(predict_scene(model, scene, params, share, host=cpu))} with the {share:.2f} of a core the "
                 f"production runs got  (median error {100 * err:.0f} % given a run's share, {100 * err_med:.0f} % at the "

@@ -195,14 +195,19 @@ def test_each_processor_is_predicted_from_its_own_runs_and_unrecorded_runs_from_
             runs[run] = (s, s["wall_seconds"] + SETUP)
     legacy = _summary(2500, links=150000, count=40)  # a run from before the processor was recorded
     runs["cyl16x16_c30_re9.4/seed1"] = (legacy, legacy["wall_seconds"] + SETUP)
+    lonely = {**_summary(1800, links=90000, count=12), "host": {"cpu": "lonely", "cores": 2}}  # one family only
+    runs["cube16_c30_re26/seed3"] = (lonely, lonely["wall_seconds"] + SETUP)
     names = _write_level(tmp_path, runs)
     model, val = runcost.build(tmp_path, names, "test")
-    recorded = val[val["host"] != runcost.UNRECORDED]
+    recorded = val[val["host"].isin(["slow", "fast"])]
     assert (recorded["fitted_host"] == recorded["host"]).all()
     assert np.allclose(recorded["rel_error"], 0.0, atol=1e-9)
-    old = val[val["host"] == runcost.UNRECORDED]
-    assert (old["fitted_host"] == "all").all() and (old["fitted_on"] == 6).all()
-    assert set(model["hosts"]) == {"slow", "fast"} and model["runs_by_host"][runcost.UNRECORDED] == 1
+    old = val[val["host"].isin([runcost.UNRECORDED, "lonely"])]
+    assert (old["fitted_host"] == "all").all()
+    assert (old.loc[old["host"] == runcost.UNRECORDED, "fitted_on"] == 7).all()
+    # a processor with runs of one family cannot validate coefficients of its own: none are kept
+    assert set(model["hosts"]) == {"slow", "fast"} and model["runs_by_host"] == {"fast": 3, "lonely": 1, "slow": 3,
+                                                                                   runcost.UNRECORDED: 1}
     assert model["hosts"]["fast"]["s_per_node_update"] == pytest.approx(NODE * (0.9 / 2.3 + 0.1))
     assert model["hosts"]["slow"]["s_per_node_update"] == pytest.approx(NODE)
     assert model["hosts"]["fast"]["median_abs_rel_error"] == pytest.approx(0.0, abs=1e-9)

@@ -30,8 +30,9 @@ Runs are kept apart by processor (``summary.json`` ``host.cpu``, the processor t
 compiled for): the vectorised fluid step costs a processor-dependent time per node that no share
 of a core accounts for. Each processor with runs of its own gets its own coefficients (``hosts``),
 and a run of such a processor is validated against the other families' runs of that processor
-alone; runs that record no processor (made before the field existed) form the group
-``unrecorded``, validated against every other family's runs. The top-level coefficients are
+alone (a processor with runs of one family only is validated, and predicted, like the rest); runs
+that record no processor (made before the field existed) form the group ``unrecorded``, validated
+against every other family's runs. The top-level coefficients are
 fitted to all runs (what a processor without runs of its own is predicted from).
 
 Validation is leave-one-family-out: a family is a case with its Reynolds numbers and seeds
@@ -227,8 +228,8 @@ def build(level_dir: Path, runs: list[str], level: str) -> tuple[dict, pd.DataFr
     # each recorded processor's own coefficients, and the validation of its runs
     hosts = {}
     for host, hrows in rows.groupby("host", sort=True):
-        if host == UNRECORDED:
-            continue
+        if host == UNRECORDED or hrows["family"].nunique() < 2:
+            continue  # a processor's own coefficients only where its runs validate them (two families)
         hm = fit(hrows)
         hm.pop("formula", None)
         hosts[host] = {**hm, "families": int(hrows["family"].nunique()), **_errors(val[val["host"] == host])}
@@ -248,7 +249,8 @@ def write(level_dir: Path, runs: list[str], level: str, model_path: Path, table_
 
 def for_host(model: dict, host: str | None) -> tuple[dict, bool]:
     """The coefficients that predict a run on processor ``host``: its own (``model["hosts"]``)
-    if the model has runs of it, else the fit to all runs. Returns (model, own)."""
+    if the model has validated them (runs of two families or more), else the fit to all runs.
+    Returns (model, own)."""
     own = (model.get("hosts") or {}).get(host) if host else None
     return ({**model, **own}, True) if own else (model, False)
 
