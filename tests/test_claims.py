@@ -143,6 +143,17 @@ def test_claim14_colliding_cylinders_align_less_only_if_their_mean_angle_is_larg
     assert claim_row(tmp_path, PAIR14, 14).verdict == verdict
 
 
+def test_claim14_with_a_mean_angle_but_no_interval_says_so_instead_of_calling_the_statistics_missing(tmp_path):
+    # one packing averaged for less than two batches of the orientation's correlation time: a mean
+    # without an interval cannot decide the claim, and the reason names the mean it has
+    write_orientation_summary(tmp_path, [(claims.ALIGN_CASE, "cyl_axis_angle", 55.2, np.nan),
+                                         (claims.ALIGN_NOCOLL_CASE, "cyl_axis_angle", 40.0, 2.0)])
+    row = claim_row(tmp_path, PAIR14, 14)
+    assert row.verdict == "inconclusive"
+    assert f"{claims.ALIGN_CASE}: mean cyl_axis_angle 55.2 deg without an interval" in row.reason
+    assert "no orientation statistics" not in row.reason
+
+
 def test_claim12_equivalence_margin_decides_no_effect_of_reynolds_on_cubes(tmp_path):
     cases = {"cube8_c30_re9.4": cube(8, 0.3, 9.4), "cube8_c30_re26": cube(8, 0.3, 26.0)}
     write_orientation_summary(tmp_path, [("cube8_c30_re9.4", "cube_projected_angle", 22.0, 0.5),

@@ -201,8 +201,12 @@ class Inputs:
         if r is None:
             return None, why
         v, c = float(r["mean_deg"]), float(r["ci95_deg"])
-        if not (np.isfinite(v) and np.isfinite(c)):
+        if not np.isfinite(v):
             return None, f"{name}: no orientation statistics for {kind} (NaN)"
+        if not np.isfinite(c):
+            # one packing averaged for less than two batches of the orientation's own correlation
+            # time has a mean but no interval (the run's stats.json says how long it would need)
+            return None, f"{name}: mean {kind} {v:.1f} deg without an interval (averaged too short for its correlation time)"
         return (v, c), None
 
     def histogram(self, name: str | None, kind: str, desc: str = "") -> tuple[pd.DataFrame | None, str | None]:
