@@ -63,12 +63,12 @@ def main(argv=None) -> int:
             continue
         sc = _scene(config, level, r)
         params = derive(sc)
-        own_core[r] = runcost.predict_scene(model, sc, params, 1.0, host=cpu)
+        own_core[r] = runcost.predict_scene(used, sc, params, 1.0)
         if r in done:
             rows.append((r, params.n_steps, float(done[r]), "measured"))
         else:
             share = used.get("median_cpu_share", 1.0)  # under the conditions of the runs measured here
-            rows.append((r, params.n_steps, runcost.predict_scene(model, sc, params, share, host=cpu), "cost model"))
+            rows.append((r, params.n_steps, runcost.predict_scene(used, sc, params, share), "cost model"))
 
     print(f"level {level}: {len(runs)} runs, {len(done)} done here; cost model fitted to {model['n_runs']} runs, "
           f"median error {100 * model['median_abs_rel_error_median_share']:.1f} % at the median share of a core "

@@ -145,8 +145,8 @@ def _predicted_text(scene: Scene, params: LatticeParams, model: dict, path: str)
         runs = (f"{used.get('n_validated', 0)} production runs on this processor ({cpu}) held out of the fit" if own else
                 f"{used.get('n_validated', 0)} production runs held out of the fit; {here} on this processor ({cpu}), too "
                 f"few families to validate its own coefficients, and its fluid step may cost another time per node")
-        text = (f"{_duration(predict_scene(model, scene, params, host=cpu))} wall with a core per thread of its own, "
-                f"{_duration(predict_scene(model, scene, params, share, host=cpu))} with the {share:.2f} of a core the "
+        text = (f"{_duration(predict_scene(used, scene, params))} wall with a core per thread of its own, "
+                f"{_duration(predict_scene(used, scene, params, share))} with the {share:.2f} of a core the "
                 f"production runs got  (median error {100 * err:.0f} % given a run's share, {100 * err_med:.0f} % at the "
                 f"median share, on {runs}: {path})")
         if (scene.run.threads or 1) not in model.get("threads_measured", [1]):

@@ -176,10 +176,10 @@ _CITE = re.compile(rf"\bEqs?\.\s*({_GROUP}(?:\s*(?:-|–|—|,|and|to)\s*{_GROUP
 _PART = re.compile(rf"({_GROUP})|(-|–|—|to)")
 
 
-
 def _href(target: Path, out_dir: Path) -> str:
     """``target``'s path relative to ``out_dir`` (the document's folder), with forward slashes."""
     return os.path.relpath(Path(target).resolve(), Path(out_dir).resolve()).replace(os.sep, "/")
+
 
 def cited_equations(text: str) -> set[int]:
     """Equation numbers a docstring cites: ``Eq. (N)``, ``Eq. (Na)`` (a sub-equation counts as N),
@@ -444,8 +444,7 @@ def figure_entries(fid_dir: Path, out_dir: Path) -> list[dict]:
         pdf = png.with_suffix(".pdf")
         out.append({"key": key, "stem": png.stem,
                     "image": _href(png, out_dir),
-                    "pdf": _href(pdf, out_dir)
-                    if pdf.is_file() else None,
+                    "pdf": _href(pdf, out_dir) if pdf.is_file() else None,
                     "ours": ours, "ours_source": source,
                     "paper": PAPER_CAPTIONS.get(key.rstrip("ab") if key not in PAPER_CAPTIONS else key,
                                                 "(no such figure in the paper)")})
@@ -463,6 +462,7 @@ def runtime_section(fid_dir: Path, fidelity: str) -> dict:
     df = _read_csv(fid_dir / "tables" / "runtime.csv")
     sec = {"paper_hours": fmt(PAPER_HOURS_PER_CASE), "cases": None, "levels": [], "model": None}
     from .health import read_json
+    from .runcost import UNRECORDED
 
     model = read_json(fid_dir / "tables" / "cost_model.json")
     val = _read_csv(fid_dir / "tables" / "cost_validation.csv")
@@ -485,7 +485,7 @@ def runtime_section(fid_dir: Path, fidelity: str) -> dict:
                                    "median_share_pct": fmt(100 * float(h.get("median_abs_rel_error_median_share",
                                                                              float("nan"))))}
                                   for cpu, h in sorted((model.get("hosts") or {}).items())],
-                        "unrecorded": fmt((model.get("runs_by_host") or {}).get("unrecorded", 0)),
+                        "unrecorded": fmt((model.get("runs_by_host") or {}).get(UNRECORDED, 0)),
                         "table": table_of(val, ["run", "family", "host", "steps", "particles", "links", "wall_s",
                                                 "predicted_s", "rel_error", "cpu_share", "rel_error_median_share",
                                                 "fitted_host"])

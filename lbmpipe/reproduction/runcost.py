@@ -28,12 +28,12 @@ measures the thread scaling).
 
 Runs are kept apart by processor (``summary.json`` ``host.cpu``, the processor the kernels were
 compiled for): the vectorised fluid step costs a processor-dependent time per node that no share
-of a core accounts for. Each processor with runs of its own gets its own coefficients (``hosts``),
-and a run of such a processor is validated against the other families' runs of that processor
-alone (a processor with runs of one family only is validated, and predicted, like the rest); runs
-that record no processor (made before the field existed) form the group ``unrecorded``, validated
-against every other family's runs. The top-level coefficients are
-fitted to all runs (what a processor without runs of its own is predicted from).
+of a core accounts for. A run of a recorded processor is validated against the other families'
+runs of that processor where there are any, and a processor whose runs cover two families or more
+keeps coefficients of its own (``hosts``). Runs that record no processor (made before the field
+existed) form the group ``unrecorded`` and, like a processor with runs of one family only, are
+validated against every other family's runs. The top-level coefficients are fitted to all runs:
+what a processor without coefficients of its own is predicted from.
 
 Validation is leave-one-family-out: a family is a case with its Reynolds numbers and seeds
 (``cyl8x16_c30`` holds ``cyl8x16_c30_re9.4/seed1`` ... ``cyl8x16_c30_re26/seed3``), so a run is
@@ -85,7 +85,8 @@ def run_row(run: str, summary: dict, bench_s: float = float("nan")) -> dict | No
     part = summary.get("particles") or {}
     resumed = not (math.isfinite(bench_s) and bench_s >= loop)
     wall = loop + setup if resumed else float(bench_s)
-    cpu = (summary.get("host") or {}).get("cpu") if isinstance(summary.get("host"), dict) else None
+    rec = summary.get("host")
+    cpu = rec.get("cpu") if isinstance(rec, dict) else None
     return {"run": run, "family": family(run), "host": str(cpu) if cpu else UNRECORDED, "steps": int(summary["steps"]),
             "threads": int(summary.get("threads") or 1), "nodes": int(summary.get("fluid_nodes") or 0),
             "links": int(part.get("links") or 0), "particles": int(part.get("count") or 0),
@@ -255,12 +256,12 @@ def for_host(model: dict, host: str | None) -> tuple[dict, bool]:
     return ({**model, **own}, True) if own else (model, False)
 
 
-def predict_scene(model: dict, scene, params, share: float = 1.0, host: str | None = None) -> float:
+def predict_scene(model: dict, scene, params, share: float = 1.0) -> float:
     """Predicted wall seconds of a validated ``Scene`` with lattice parameters ``params``, with
-    ``share`` of a core per thread, on processor ``host`` (:func:`for_host`; None: from all runs):
-    the particles' links estimated from their surface area (``links_per_area_lu`` of the model),
-    their count as the packer or random placement would make it."""
-    model, _own = for_host(model, host)
+    ``share`` of a core per thread (``model``: a level's model, or one processor's from
+    :func:`for_host`): the particles' links estimated from their surface area
+    (``links_per_area_lu`` of the model), their count as the packer or random placement would
+    make it."""
     count, area_mm2 = scene_particle_load(scene)
     lpa = model.get("links_per_area_lu")
     lpa = float(lpa) if lpa is not None and math.isfinite(float(lpa)) else D3Q15_LINKS_PER_AREA
