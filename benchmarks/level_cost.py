@@ -92,7 +92,34 @@ def main(argv=None) -> int:
               f"{longest[1] / 60:.0f} min")
     if unpackable:
         print(f"not packable (no run): {', '.join(unpackable)}")
+    _five_percent(level_dir, runs, own_core)
     return 0
+
+
+def _five_percent(level_dir: Path, runs: list[str], own_core: dict) -> None:
+    """What the 5 % target on mean |Omega| (seeds included) would cost: per case, the packings its
+    seed-to-seed spread needs (``stats.json`` ``seeds_for_5pct``, worst axis) against those it has,
+    the extra runs at this processor's one-core prediction."""
+    rows = []
+    for case in sorted({split_run(r)[0] for r in runs if split_run(r)[1] is not None}):
+        st = read_json(level_dir / "cases" / case / "stats.json") or {}
+        need = [n for n in (st.get("seeds_for_5pct") or {}).values() if n is not None]
+        seed_runs = [r for r in runs if split_run(r)[0] == case and r in own_core]
+        if st.get("status") != "completed" or not need or not seed_runs:
+            continue
+        have, n = int(st.get("n_seeds") or 0), max(need)
+        per_run = sum(own_core[r] for r in seed_runs) / len(seed_runs)
+        rows.append((case, have, n, max(0, n - have) * per_run))
+    if not rows:
+        return
+    print("\nthe 5 % half-width on every axis of mean |Omega| (seeds' spread only; worst axis):")
+    print(f"{'case':32s} {'packings':>8s} {'needed':>7s} {'extra core-h':>12s}")
+    for case, have, n, extra in rows:
+        print(f"{case:32s} {have:8d} {n:7d} {extra / 3600:12.1f}")
+    extra = sum(r[3] for r in rows)
+    print(f"extra for the 5 % target on every completed case: {extra / 3600:.1f} core-hours "
+          f"({extra / 7200:.1f} h on 2 cores); cases already within it: "
+          f"{sum(1 for r in rows if r[2] <= r[1])} of {len(rows)}")
 
 
 if __name__ == "__main__":
