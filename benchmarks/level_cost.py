@@ -96,31 +96,55 @@ def main(argv=None) -> int:
     return 0
 
 
+def _within_run_se(level_dir: Path, case: str, seeds: list[int], axis: str) -> float | None:
+    """Root mean square over the seeds of each run's own standard error of mean |Omega| on one axis
+    (its 95 % half-width over Student's t at its batches' degrees of freedom): the part of the
+    seed-to-seed scatter that longer runs would lower."""
+    from scipy import stats as sps
+
+    se2 = []
+    for k in seeds:
+        iv = ((read_json(level_dir / "cases" / case / f"seed{k}" / "stats.json") or {}).get("omega_intervals") or {}).get(axis) or {}
+        if iv.get("ci95") is not None and (iv.get("dof") or 0) >= 1:
+            se2.append((float(iv["ci95"]) / sps.t.ppf(0.975, float(iv["dof"]))) ** 2)
+    return (sum(se2) / len(se2)) ** 0.5 if se2 else None
+
+
 def _five_percent(level_dir: Path, runs: list[str], own_core: dict) -> None:
     """What the 5 % target on mean |Omega| (seeds included) would cost: per case, the packings its
     seed-to-seed spread needs (``stats.json`` ``seeds_for_5pct``, worst axis) against those it has,
-    the extra runs at this processor's one-core prediction."""
+    the extra runs at this processor's one-core prediction; beside it the seeds' scatter and the
+    runs' own standard error on that axis, which says whether the scatter is the packings' (more
+    packings the only way down) or averaging noise (longer runs would lower it too)."""
     rows = []
     for case in sorted({split_run(r)[0] for r in runs if split_run(r)[1] is not None}):
         st = read_json(level_dir / "cases" / case / "stats.json") or {}
-        need = [n for n in (st.get("seeds_for_5pct") or {}).values() if n is not None]
+        need = {a: n for a, n in (st.get("seeds_for_5pct") or {}).items() if n is not None}
         seed_runs = [r for r in runs if split_run(r)[0] == case and r in own_core]
         if st.get("status") != "completed" or not need or not seed_runs:
             continue
-        have, n = int(st.get("n_seeds") or 0), max(need)
+        axis = max(need, key=need.get)
+        mean = (st.get("mean_abs_omega_rad_s") or {}).get(axis)
+        seeds = [int(s["seed"]) for s in st.get("seeds") or [] if s.get("mean_abs_omega_rad_s")]
+        se = _within_run_se(level_dir, case, seeds, axis)
+        have, n = int(st.get("n_seeds") or 0), need[axis]
         per_run = sum(own_core[r] for r in seed_runs) / len(seed_runs)
-        rows.append((case, have, n, max(0, n - have) * per_run))
+        rows.append((case, have, n, axis, (st.get("seed_spread_rel") or {}).get(axis),
+                     se / abs(mean) if se is not None and mean else None, max(0, n - have) * per_run))
     if not rows:
         return
-    print("\nthe 5 % half-width on every axis of mean |Omega| (seeds' spread only; worst axis):")
-    print(f"{'case':32s} {'packings':>8s} {'needed':>7s} {'extra core-h':>12s}")
-    for case, have, n, extra in rows:
-        print(f"{case:32s} {have:8d} {n:7d} {extra / 3600:12.1f}")
-    extra = sum(r[3] for r in rows)
+    pct = lambda v: "    -" if v is None else f"{100 * v:4.1f}%"
+    print("\nthe 5 % half-width on every axis of mean |Omega| (seeds' spread; worst axis; sd and a run's own")
+    print("standard error relative to the mean):")
+    print(f"{'case':32s} {'packings':>8s} {'needed':>7s} {'axis':>4s} {'seed sd':>7s} {'run se':>7s} {'extra core-h':>12s}")
+    for case, have, n, axis, sd, se, extra in rows:
+        print(f"{case:32s} {have:8d} {n:7d} {axis:>4s} {pct(sd):>7s} {pct(se):>7s} {extra / 3600:12.1f}")
+    extra = sum(r[6] for r in rows)
+    packing_bound = [r[0] for r in rows if r[4] is not None and r[5] is not None and r[4] > 2 * r[5]]
     print(f"extra for the 5 % target on every completed case: {extra / 3600:.1f} core-hours "
-          f"({extra / 7200:.1f} h on 2 cores); cases already within it: "
-          f"{sum(1 for r in rows if r[2] <= r[1])} of {len(rows)}")
-
+          f"({extra / 7200:.1f} h on 2 cores); cases already within it: {sum(1 for r in rows if r[2] <= r[1])} "
+          f"of {len(rows)}; cases whose seeds scatter more than twice a run's own standard error (the packings, "
+          f"not the averaging, set their floor): {len(packing_bound)} of {len(rows)}")
 
 if __name__ == "__main__":
     raise SystemExit(main())
