@@ -167,6 +167,36 @@ def test_spinup_end_is_not_steady_when_halves_of_the_window_disagree():
     assert not r["observables"]["omega_z"]["agree"]
 
 
+def test_stationary_runs_called_unsteady_by_one_of_four_tests_are_mostly_chance_and_a_drift_is_not():
+    # four independent stationary AR(1) observables per run: at 95 % each, about 1 - 0.95^4 = 19 %
+    # of runs have some pair of halves that differ; corrected over the four (Bonferroni) about 5 %
+    # are left as drift (10 % allows for 200 replicas and MSER's choice of window), while a real
+    # drift stays one
+    rng = np.random.default_rng(53)
+    dt, n, reps = 0.02, 2000, 200
+    t = dt * np.arange(1, n + 1)
+    verdicts = []
+    for _ in range(reps):
+        obs = {f"o{i}": 1.0 + ar1(0.5, n, rng) for i in range(4)}
+        r = steady.spinup_end(t, obs, min_spinup_s=0.0)
+        c = steady.steady_corrected(r)
+        assert c["k"] == 4 and c["bound"] == pytest.approx(2.498, abs=1e-3)
+        if not any(o["agree"] for o in r["observables"].values()) and r["steady"]:
+            raise AssertionError("steady with disagreeing halves")
+        verdicts.append((c["verdict"], any(not o["agree"] for o in r["observables"].values())))
+    raw = sum(d for _, d in verdicts) / reps
+    drift = sum(v == "drift" for v, _ in verdicts) / reps
+    assert 0.10 <= raw <= 0.35
+    assert drift <= 0.10 and drift < raw and any(v == "chance" for v, _ in verdicts)
+    # a series that still drifts stays unsteady whatever the correction: its halves differ far
+    # beyond the bound, or (a strong trend) MSER finds no settled window
+    for slope in (0.002, 0.05):
+        obs = {"o0": 1.0 + slope * t + 0.05 * ar1(0.8, n, rng), **{f"o{i}": 1.0 + ar1(0.5, n, rng) for i in range(1, 4)}}
+        c = steady.steady_corrected(steady.spinup_end(t, obs, min_spinup_s=0.0))
+        assert c["verdict"] in ("drift", "mser"), (slope, c)
+        assert c["verdict"] == "mser" or (c["worst"] == "o0" and c["worst_z"] > c["bound"])
+
+
 # ----------------------------------------------------------------------------------------------
 # several packings
 

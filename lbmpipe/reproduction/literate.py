@@ -627,6 +627,31 @@ def health_section(fid_dir: Path, config: dict) -> dict:
     return {"table": table_of(pd.DataFrame(rows, columns=cols)), "intro": intro, "note": note, "rows": rows}
 
 
+def stationarity_section(fid_dir: Path) -> dict | None:
+    """How the runs' spin-up tests read at a family-wise 95 % (``steady.steady_corrected``): every
+    run whose ``stats.json`` keeps the halves of its observables (``cases/*/seed*/`` or, one
+    packing per case, ``cases/*/``); None when no run does."""
+    from .health import read_json
+    from .steady import steady_corrected
+
+    cases = Path(fid_dir) / "cases"
+    files = sorted(cases.glob("*/seed*/stats.json")) + sorted(cases.glob("*/stats.json"))
+    runs = []
+    for f in files:
+        sp = (read_json(f) or {}).get("spinup") or {}
+        if sp.get("observables"):
+            runs.append({"run": str(f.parent.relative_to(cases)), **steady_corrected(sp)})
+    if not runs:
+        return None
+    counts = {v: sum(r["verdict"] == v for r in runs) for v in ("steady", "drift", "mser", "chance", "no interval")}
+    drift = [r["worst_z"] for r in runs if r["verdict"] == "drift"]
+    ks = sorted({r["k"] for r in runs})
+    return {"runs": runs, "n": len(runs), "counts": counts, "not_steady": len(runs) - counts["steady"],
+            "k": "/".join(map(str, ks)), "bound": fmt(max(r["bound"] for r in runs)),
+            "z_max": fmt(max(drift)) if drift else None,
+            "mostly_drift": counts["drift"] + counts["mser"] > 2 * counts["chance"]}
+
+
 def study_section(fid_dir: Path, out_dir: Path) -> dict:
     """The accuracy-cost study: its Markdown reports (``study/*.md``, generated from its CSVs), any
     CSV without a report as a table, and its figures."""
@@ -1031,6 +1056,7 @@ def build_context(repo_root: Path, fid_dir: Path, fidelity: str, config: dict, o
         "runtime": runtime_section(fid_dir, fidelity),
         "method": method_comparison_section(fid_dir, fidelity, config, out_dir),
         "convergence": convergence_section(fid_dir, fidelity, config, out_dir),
+        "stationarity": stationarity_section(fid_dir),
         "missing": lambda rel: f"not built at this level: `{_rel_to(fid_dir, repo_root)}/{rel}` missing",
     }
 

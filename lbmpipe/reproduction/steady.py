@@ -8,7 +8,8 @@ references:
 - :func:`mser_truncation`, :func:`spinup_end`: MSER-5 truncation (White 1997; White, Cobb & Spratt
   2000; Franklin & White 2008), applied to several observables, the latest one taken, never
   before a given minimum (two viscous times ``R^2/nu``); evidence: the two halves of the kept
-  window agree within the interval of their difference.
+  window agree within the interval of their difference; :func:`steady_corrected` reads that
+  verdict again at a family-wise 95 % over the observables (Bonferroni).
 - :func:`integrated_autocorrelation_time`: ``tau_int`` with Sokal's automatic window (Madras &
   Sokal 1988; Sokal 1997, "Monte Carlo methods in statistical mechanics"), with its statistical
   error and a status saying when the series cannot resolve it.
@@ -316,6 +317,44 @@ def spinup_end(t, observables: dict, min_spinup_s: float, confidence: float = 0.
             "spinup_s": spin, "min_spinup_s": float(min_spinup_s), "limited_by": limited_by,
             "window_s": float(t[keep][-1] - t[keep][0] + dt) if keep.any() else 0.0, "steady": steady,
             "observables": per, "message": "; ".join(msgs)}
+
+
+def steady_corrected(spinup: dict, confidence: float = 0.95) -> dict:
+    """:func:`spinup_end`'s verdict of one run read again with its ``k`` observables' halves
+    compared at a family-wise ``confidence`` (Bonferroni: each at ``1 - (1 - confidence)/k``), so
+    that a run is not called unsteady because one of several tests misses by chance.
+
+    Each comparison becomes ``z = z_{(1+confidence)/2} |m1 - m2| / sqrt(h1^2 + h2^2)`` from the
+    halves and half-widths ``spinup_end`` stored (the half-widths use Student's t, so this ``z`` is
+    if anything too small), against the bound ``z_{1 - (1 - confidence)/(2k)}``. Returns
+    ``{verdict, k, bound, worst_z, worst, unsettled}``; ``verdict``: ``steady`` (as stored),
+    ``drift`` (some halves differ beyond the bound), ``mser`` (halves within it, but MSER has not
+    settled some observable in the first half of its series), ``chance`` (halves differ only at
+    ``confidence`` each: steady once corrected), ``no interval`` (halves too short to compare).
+    """
+    obs = spinup.get("observables") or {}
+    k = max(len(obs), 1)
+    z_each = float(_st.norm.ppf(0.5 + confidence / 2))
+    bound = float(_st.norm.ppf(1 - (1 - confidence) / (2 * k)))
+    z = {}
+    for name, o in obs.items():
+        h = math.hypot(float(o.get("first_ci95") or _NAN), float(o.get("second_ci95") or _NAN))
+        if math.isfinite(h) and h > 0:
+            z[name] = z_each * abs(float(o["first"]) - float(o["second"])) / h
+    worst = max(z, key=z.get) if z else None
+    unsettled = [n for n, o in obs.items() if not o.get("settled")]
+    if spinup.get("steady"):
+        verdict = "steady"
+    elif worst is not None and z[worst] > bound:
+        verdict = "drift"
+    elif unsettled:
+        verdict = "mser"
+    elif any(v > z_each for v in z.values()):
+        verdict = "chance"
+    else:
+        verdict = "no interval"
+    return {"verdict": verdict, "k": len(obs), "bound": bound, "worst_z": z[worst] if worst else _NAN,
+            "worst": worst, "unsettled": unsettled}
 
 
 def viscous_time_s(diameter_mm: float, nu_m2_s: float) -> float:
