@@ -75,6 +75,17 @@ def test_a_seed_not_yet_run_is_left_out_of_the_mean_and_counted():
     assert out["mean_abs_omega_rad_s"]["z"] == pytest.approx(1.1)
 
 
+def test_a_packing_that_went_unstable_is_left_out_of_the_mean_and_makes_the_case_unhealthy():
+    blown = {"case": "c", "status": "unstable", "samples": 0, "mean_abs_omega_rad_s": {a: None for a in "xyz"},
+             "health": {"status": "unstable", "issues": ["status unstable", "largest density deviation 0.368 > 0.3"],
+                        "density_deviation_max": 0.368, "healthy": False}}
+    out = S.combine_stats("c", [(1, _seed_stats(1.0, 0.02)), (2, _seed_stats(1.2, 0.02)), (3, blown)])
+    assert out["status"] == "completed" and out["n_seeds"] == 2 and out["seed_status"]["3"] == "unstable"
+    assert out["mean_abs_omega_rad_s"]["x"] == pytest.approx(1.1)
+    assert out["health"]["issues"] == ["seed 3: status unstable", "seed 3: largest density deviation 0.368 > 0.3"]
+    assert "unhealthy" in out["flags"] and out["health"]["healthy"] is False
+
+
 def test_combined_files_average_histograms_and_profiles_over_the_seeds(tmp_path):
     case = tmp_path / "cases" / "cube8_c30_re9.4"
     for k, (mean, frac) in enumerate([(1.0, 0.2), (1.2, 0.4)], start=1):

@@ -123,6 +123,13 @@ def combine_stats(case: str, per_seed: list[tuple[int, dict]]) -> dict:
                                              [o.get("dof") for o in order])
 
     out.update(_worst_diagnostics(done))
+    # a packing that ran but did not finish (unstable, failed) is not in the mean, and the case
+    # says so: its issues join the case's health
+    ended = [(k, s) for k, s in per_seed if s and s.get("status") not in ("completed", "not run", None)]
+    for k, s in ended:
+        own = list((s.get("health") or {}).get("issues") or []) or [f"status {s.get('status')}"]
+        out["health"]["issues"] += [f"seed {k}: {i}" for i in own]
+    out["health"]["healthy"] = not out["health"]["issues"]
     out["resolution"] = first.get("resolution")
     out["flags"] = H.case_flags(out)
     out["seeds"] = [{"seed": k, "status": statuses[k], "spinup_s": (s or {}).get("spinup_s"),
