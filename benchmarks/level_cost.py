@@ -66,6 +66,8 @@ def main(argv=None) -> int:
         own_core[r] = runcost.predict_scene(used, sc, params, 1.0)
         if r in done:
             rows.append((r, params.n_steps, float(done[r]), "measured"))
+        elif _status(level_dir, r) not in (None, "completed"):  # ran and ended early: a full rerun's cost
+            rows.append((r, params.n_steps, runcost.predict_scene(used, sc, params, 1.0), f"ended {_status(level_dir, r)}"))
         else:
             share = used.get("median_cpu_share", 1.0)  # under the conditions of the runs measured here
             rows.append((r, params.n_steps, runcost.predict_scene(used, sc, params, share), "cost model"))
@@ -83,13 +85,16 @@ def main(argv=None) -> int:
     for r, n, wall, src in rows:
         print(f"{r:40s} {n:8d} {wall / n:8.4f} {wall / 60:8.1f}  {src}")
     total = sum(w for _, _, w, _ in rows)
-    todo = sum(w for _, _, w, src in rows if src != "measured")
+    todo = sum(w for _, _, w, src in rows if src == "cost model")
     longest = max(own_core.items(), key=lambda x: x[1]) if own_core else None
     print(f"\nwhole level: {total / 3600:.1f} core-hours ({total / 7200:.1f} h on 2 cores, one run per core); "
           f"still to run: {todo / 3600:.1f} core-hours ({todo / 7200:.1f} h on 2 cores)")
     if longest:
         print(f"on a cluster with a core of its own per run (the model at share 1): the longest run, {longest[0]}, "
               f"{longest[1] / 60:.0f} min")
+    ended = [r for r, _, _, src in rows if src.startswith("ended")]
+    if ended:
+        print(f"ran and ended early (not averaged; counted above at a full run's predicted cost): {', '.join(ended)}")
     if unpackable:
         print(f"not packable (no run): {', '.join(unpackable)}")
     _five_percent(level_dir, runs, own_core)

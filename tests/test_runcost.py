@@ -178,7 +178,32 @@ def test_a_cluster_time_limit_follows_the_wall_time_model_and_never_falls_below_
     assert cases.estimate_minutes(config, "credible", "cyl16x16_c30_re26/seed1", root) == without
 
 
-def test_each_processor_is_predicted_from_its_own_runs_and_unrecorded_runs_from_all(tmp_path):
+def test_unrecorded_runs_of_several_families_are_predicted_from_each_other_not_from_a_faster_processor(tmp_path):
+    # the unrecorded runs came from a machine whose fluid step costs 2.3 times more per node than
+    # the recorded processor's: validated within their group they are predicted exactly
+    runs = {}
+    for run, links, count, cpu, scale in (
+            ("flow_re9.4", 0, 0, None, 1.0), ("cube16_c30_re9.4/seed1", 110000, 14, None, 1.0),
+            ("cyl8x8_c30_re9.4/seed1", 220000, 146, None, 1.0),
+            ("flow_re26", 0, 0, "fast", 1 / 2.3), ("cube16_c30_re9.4/seed2", 110000, 14, "fast", 1 / 2.3),
+            ("cyl8x8_c30_re9.4/seed2", 220000, 146, "fast", 1 / 2.3)):
+        s = _summary(1000 + len(runs) * 300, links=links, count=count)
+        for name in s["effects"]:
+            if name.startswith("stream+collide"):
+                s["effects"][name] *= scale
+        s["wall_seconds"] = sum(s["effects"].values()) + STEP * s["steps"]
+        if cpu:
+            s["host"] = {"cpu": cpu, "cores": 2}
+        runs[run] = (s, s["wall_seconds"] + SETUP)
+    names = _write_level(tmp_path, runs)
+    model, val = runcost.build(tmp_path, names, "test")
+    old = val[val["host"] == runcost.UNRECORDED]
+    assert len(old) == 3 and (old["fitted_host"] == runcost.UNRECORDED).all()
+    assert np.allclose(val["rel_error"], 0.0, atol=1e-9)
+    assert set(model["hosts"]) == {"fast"}
+
+
+def test_each_processor_is_predicted_from_its_own_runs_and_a_lone_unrecorded_family_from_all(tmp_path):
     # the fluid step costs 2.3 times less per node on processor "fast": validated within their own
     # processor, both processors' runs are predicted exactly; pooled, neither would be
     runs = {}

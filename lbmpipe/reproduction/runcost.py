@@ -31,9 +31,11 @@ compiled for): the vectorised fluid step costs a processor-dependent time per no
 of a core accounts for. A run of a recorded processor is validated against the other families'
 runs of that processor where there are any, and a processor whose runs cover two families or more
 keeps coefficients of its own (``hosts``). Runs that record no processor (made before the field
-existed) form the group ``unrecorded`` and, like a processor with runs of one family only, are
-validated against every other family's runs. The top-level coefficients are fitted to all runs:
-what a processor without coefficients of its own is predicted from.
+existed) form the group ``unrecorded``, validated against the group's other families: they come
+from the machines used before the record, and a fit dominated by a recorded processor would
+predict one machine from another. A group whose runs are all of one family is validated against
+every other family's runs. The top-level coefficients are fitted to all runs: what a processor
+without coefficients of its own is predicted from; the unrecorded group keeps none of its own.
 
 Validation is leave-one-family-out: a family is a case with its Reynolds numbers and seeds
 (``cyl8x16_c30`` holds ``cyl8x16_c30_re9.4/seed1`` ... ``cyl8x16_c30_re26/seed3``), so a run is
@@ -161,12 +163,12 @@ def predict(model: dict, steps, nodes, links=0.0, particles=0.0, threads=1, shar
 
 def _training(rows: pd.DataFrame, fam: str, host: str) -> tuple[pd.DataFrame, str]:
     """The runs that predict family ``fam``'s runs on processor ``host``: the other families' runs
-    of that processor if it is recorded and has any, else every other family's runs ("all")."""
+    of that processor (or of the unrecorded group) if there are any, else every other family's
+    runs ("all")."""
     other = rows["family"] != fam
-    if host != UNRECORDED:
-        same = other & (rows["host"] == host)
-        if same.any():
-            return rows[same], host
+    same = other & (rows["host"] == host)
+    if same.any():
+        return rows[same], host
     return rows[other], "all"
 
 
