@@ -66,8 +66,8 @@ def main(argv=None) -> int:
         own_core[r] = runcost.predict_scene(used, sc, params, 1.0)
         if r in done:
             rows.append((r, params.n_steps, float(done[r]), "measured"))
-        elif _status(level_dir, r) not in (None, "completed"):  # ran and ended early: a full rerun's cost
-            rows.append((r, params.n_steps, runcost.predict_scene(used, sc, params, 1.0), f"ended {_status(level_dir, r)}"))
+        elif (status := _status(level_dir, r)) not in (None, "completed"):  # ran and ended early: a full rerun's cost
+            rows.append((r, params.n_steps, own_core[r], f"ended {status}"))
         else:
             share = used.get("median_cpu_share", 1.0)  # under the conditions of the runs measured here
             rows.append((r, params.n_steps, runcost.predict_scene(used, sc, params, share), "cost model"))
