@@ -27,26 +27,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .fluid import boundaries as bnd
+from .effect import Effect
 from .fluid.kernels import KernelSpec, get_kernel
-
-
-class Effect:
-    """One piece of physics in the time step. Subclasses set ``name``, ``phase`` and ``__call__``."""
-
-    name = "effect"
-    phase = "pre"
-    #: key of the effect's tallies in ``Simulation.records()`` (None: it keeps none)
-    record_key: str | None = None
-
-    def __call__(self, sim) -> None:  # pragma: no cover - interface
-        raise NotImplementedError
-
-    def record(self) -> dict | None:
-        """The effect's tallies since the start of the run (lattice units), or None."""
-        return None
-
-    def __repr__(self) -> str:
-        return f"<{self.phase}: {self.name}>"
 
 
 class StreamCollide(Effect):

@@ -42,7 +42,7 @@ import numpy as np
 from numba import njit, prange
 
 from .errors import Unstable  # noqa: F401  (raised here; guard.Unstable is the name callers used)
-from .particles.collisions import OVERLAP_BOUND_FACTOR
+from .particles.collision_params import OVERLAP_BOUND_FACTOR
 
 #: steps between checks when the scene does not say (cost < 1 % of the step: benchmarks/guard.py)
 DEFAULT_EVERY = 50

@@ -358,7 +358,7 @@ def pair_rule_errors(scene) -> list:
     free = any(not getattr(g, "fixed", False) for g in groups)
     if not free or body_count(scene) < 2:
         return []
-    from lbmpipe.particles.collisions import CollisionParams, min_periodic_length
+    from lbmpipe.particles.collision_params import CollisionParams, min_periodic_length
 
     dx = scene.numerics.dx_mm
     rb_lu = max(bounding_radius_mm(g) for g in groups) / dx

@@ -172,7 +172,7 @@ from numba import njit, prange, types
 from numba.core import cgutils
 from numba.extending import intrinsic
 
-from .. import effects as fx
+from ..effect import Effect
 from ..fluid.boundaries import plane_buffer
 from ..fluid.observables import ordered_sum
 from .rigid import Bodies, drift_arrays, omega_lab_arrays, quat_to_matrix
@@ -1494,7 +1494,7 @@ class ParticleSystem:
         return np.concatenate(xs), np.concatenate(ss), np.concatenate(ii), np.concatenate(rr)
 
 
-class FixedParticles(fx.Effect):
+class FixedParticles(Effect):
     """Fixed particles: half-way bounce-back on their links, force and torque."""
 
     name = "particles: fixed obstacles (bounce-back, force)"
@@ -1507,7 +1507,7 @@ class FixedParticles(fx.Effect):
         self.system.fill_fixed(sim.f2)
 
 
-class ParticleCoupling(fx.Effect):
+class ParticleCoupling(Effect):
     """Free particles: link sums, implicit velocity update, Ladd's ghost fill (Eqs. (8)-(12))."""
 
     name = "particles: Ladd coupling + implicit velocity update"
@@ -1520,7 +1520,7 @@ class ParticleCoupling(fx.Effect):
         self.system.couple_free(sim.f2, sim.force)
 
 
-class ParticleFluxCorrection(fx.Effect):
+class ParticleFluxCorrection(Effect):
     """Flow-rate control with particles: replaces the kernel's flux sum (which runs over particle
     nodes too) by the mixture's, ``sum_fluid (j_z - F_z/2) + sum_k n_k U_z,k``.
 
@@ -1568,7 +1568,7 @@ class ParticleFluxCorrection(fx.Effect):
         sim.last_flux = self.p_fluid - 0.5 * fz * s.n_fluid + float(np.dot(s.nown, s.bodies.v[:, 2]))
 
 
-class ParticleMotion(fx.Effect):
+class ParticleMotion(Effect):
     """Rigid-body drift of the free particles (Eqs. (13)-(15)) and the remap, with the momentum of
     covered and uncovered nodes."""
 
@@ -1582,7 +1582,7 @@ class ParticleMotion(fx.Effect):
         self.system.move(plane_buffer(sim.f_next))
 
 
-class BouzidiParticleGuard(fx.Effect):
+class BouzidiParticleGuard(Effect):
     """With interpolated walls: a wall link whose second fluid node (``x - e_i``) belongs to a
     particle falls back to plain bounce-back (that node holds no fluid)."""
 
@@ -1609,7 +1609,7 @@ def _bouzidi_guard(f2, owner, fluid, fluid2, solid, i, opp):
             f2[opp[k], solid[k]] = f2[i[k], fluid[k]]
 
 
-class MassCorrection(fx.Effect):
+class MassCorrection(Effect):
     """Restores the mean fluid density lost by the moving particles' remap (module docstring):
     every ``every`` steps, after the motion, ``f_i += w_i d_rho`` on every fluid node with
     ``d_rho = rho_target - M / n_fluid``, where ``rho_target`` is the mean density at the first

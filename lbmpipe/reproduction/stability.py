@@ -53,7 +53,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..particles.collisions import CollisionParams
+from ..particles.collision_params import CollisionParams
 from .pipe import DENSITY_KG_M3, pipe_scene, time_step
 
 #: stated bounds of the invariants
