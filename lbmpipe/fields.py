@@ -305,6 +305,19 @@ def _write_points(base: str, arrays: dict) -> str:
 
 # -- reading back (with vtk, the library ParaView is built on) ---------------------------------
 
+#: what a user without vtk is told (vtk is the `fields` extra: 0.5 GB the main job does not need)
+NEED_VTK = "lbmpipe.fields' readers need vtk, which the main install leaves out: pip install -e .[fields]"
+
+
+def _vtk_readers():
+    """``(vtkmodules.vtkIOXML, vtk_to_numpy)``, or an ImportError whose one line names the extra."""
+    try:
+        from vtkmodules import vtkIOXML
+        from vtkmodules.util.numpy_support import vtk_to_numpy
+    except ImportError:
+        raise ImportError(NEED_VTK) from None
+    return vtkIOXML, vtk_to_numpy
+
 
 def read_series(pvd: Path) -> list[tuple[float, int, str]]:
     """Entries ``(time_s, part, file)`` of a ``.pvd`` series, files relative to its folder."""
@@ -316,11 +329,10 @@ def read_series(pvd: Path) -> list[tuple[float, int, str]]:
 
 def read_lattice(path: Path) -> dict:
     """A lattice file as ``{"origin", "spacing", "shape", <array name>: ndarray}``; cell arrays
-    come back in the (nx, ny, nz) layout of the grid, vectors as (nx, ny, nz, 3)."""
-    from vtkmodules.vtkIOXML import vtkXMLImageDataReader
-    from vtkmodules.util.numpy_support import vtk_to_numpy
-
-    r = vtkXMLImageDataReader()
+    come back in the (nx, ny, nz) layout of the grid, vectors as (nx, ny, nz, 3). Needs vtk (the
+    ``fields`` extra)."""
+    vtkIOXML, vtk_to_numpy = _vtk_readers()
+    r = vtkIOXML.vtkXMLImageDataReader()
     r.SetFileName(str(path))
     r.Update()
     img = r.GetOutput()
@@ -337,11 +349,10 @@ def read_lattice(path: Path) -> dict:
 
 
 def read_particles(path: Path) -> dict:
-    """A particle file as ``{"points": (n, 3), <array name>: (n,) or (n, 3)}``."""
-    from vtkmodules.vtkIOXML import vtkXMLPolyDataReader
-    from vtkmodules.util.numpy_support import vtk_to_numpy
-
-    r = vtkXMLPolyDataReader()
+    """A particle file as ``{"points": (n, 3), <array name>: (n,) or (n, 3)}``. Needs vtk (the
+    ``fields`` extra)."""
+    vtkIOXML, vtk_to_numpy = _vtk_readers()
+    r = vtkIOXML.vtkXMLPolyDataReader()
     r.SetFileName(str(path))
     r.Update()
     poly = r.GetOutput()

@@ -1,6 +1,7 @@
 """Flow-field output (lbmpipe.fields): VTK files that ParaView's readers (vtk) read back equal to
 the in-memory state, in physical units; the .pvd series survives an interrupt and resume; the
-size per sample is printed by `lbmpipe check`."""
+size per sample is printed by `lbmpipe check`; without vtk (the `fields` extra) files are still
+written and the readers name the extra to install."""
 
 import copy
 import subprocess
@@ -201,3 +202,26 @@ def test_example_picture_renders_from_the_read_back_arrays(tmp_path):
     img = mpimg.imread(png)
     assert img.shape[0] > 200 and img.shape[1] > 400
     assert img[..., :3].std() > 0.05  # not a blank canvas
+
+
+#: vtk's modules, mocked away as in the main job's environment (vtk is the `fields` extra)
+VTK_MODULES = ("vtk", "vtkmodules", "vtkmodules.vtkIOXML", "vtkmodules.util", "vtkmodules.util.numpy_support")
+
+
+def test_fields_are_written_without_vtk_and_reading_them_back_names_the_extra_in_one_line(tmp_path, monkeypatch):
+    """The main install (no vtk) writes field files (pyevtk); the readers then fail with one line
+    that names the `fields` extra, not a traceback into vtkmodules."""
+    for name in VTK_MODULES:
+        monkeypatch.setitem(sys.modules, name, None)  # `import name` now raises ImportError
+    with pytest.raises(ImportError):
+        import vtkmodules.vtkIOXML  # noqa: F401  (the mock holds)
+    base = str(tmp_path / "lattice")
+    solid = np.zeros((2, 3, 4), dtype=np.uint8)
+    path = Path(fields._write_image(base, (0.0, 0.0, 0.0), (1.0, 1.0, 1.0), solid.shape, {"solid": solid}))
+    assert path.is_file() and path.stat().st_size > solid.size
+    for reader in (fields.read_lattice, fields.read_particles):
+        with pytest.raises(ImportError) as err:
+            reader(path)
+        message = str(err.value)
+        assert "\n" not in message and "pip install -e .[fields]" in message and "vtk" in message
+        assert err.value.__suppress_context__  # `from None`: the one line is the whole message
