@@ -7,7 +7,7 @@ axes of the cylinders among them (arrows).
 
     python docs/fields_example.py [--out DIR] [--png PATH] [--duration S]
 
-Needs the ``fields`` extra (vtk): ``pip install -e .[fields]``.
+Needs the ``fields`` extra (vtk): ``pip install -e '.[fields]'``.
 
 Also prints the size of one sample's files (lattice, particles).
 """

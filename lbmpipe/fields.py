@@ -306,7 +306,7 @@ def _write_points(base: str, arrays: dict) -> str:
 # -- reading back (with vtk, the library ParaView is built on) ---------------------------------
 
 #: what a user without vtk is told (vtk is the `fields` extra: 0.5 GB the main job does not need)
-NEED_VTK = "lbmpipe.fields' readers need vtk, which the main install leaves out: pip install -e .[fields]"
+NEED_VTK = "lbmpipe.fields' readers need vtk, which the main install leaves out: pip install -e '.[fields]'"
 
 
 def _vtk_readers():

@@ -223,5 +223,5 @@ def test_fields_are_written_without_vtk_and_reading_them_back_names_the_extra_in
         with pytest.raises(ImportError) as err:
             reader(path)
         message = str(err.value)
-        assert "\n" not in message and "pip install -e .[fields]" in message and "vtk" in message
+        assert "\n" not in message and "pip install -e '.[fields]'" in message and "vtk" in message
         assert err.value.__suppress_context__  # `from None`: the one line is the whole message
