@@ -27,7 +27,7 @@ import pandas as pd
 
 from .cases import level_cases, level_runs
 from .claims import evaluate_claims
-from .figures import method_comparison
+from .comparison_figures import method_comparison
 from .health import _num as _f
 from .health import read_json as _read
 from .health import refresh_health, thresholds
