@@ -102,9 +102,14 @@ def predict_work(model: dict, steps, nodes, links=0.0, particles=0.0, threads=1,
     """Wall seconds of runs given their work (scalars or arrays) under ``model``, each thread
     getting ``share`` of a core (1: a core of its own); the module docstring's formula."""
     t = np.maximum(np.asarray(threads, dtype=float), 1.0)
-    per_step = (model["s_per_node_update"] * np.asarray(nodes, float) + model["s_per_link_update"] * np.asarray(links, float)
-                + model["s_per_particle_step"] * np.asarray(particles, float) + model.get("s_per_step", 0.0))
-    return (model["intercept_s"] + np.asarray(steps, float) * per_step / t) / np.asarray(share, float)
+    steps = np.asarray(steps, float)
+    # work summed over the steps first (node updates, link updates, particle steps): the order the
+    # study's recorded predictions were computed in, so that they stay the same to the last bit
+    work_s = (model["s_per_node_update"] * (np.asarray(nodes, float) * steps)
+              + model["s_per_link_update"] * (np.asarray(links, float) * steps)
+              + model["s_per_particle_step"] * (np.asarray(particles, float) * steps)
+              + model.get("s_per_step", 0.0) * steps)
+    return (model["intercept_s"] + work_s / t) / np.asarray(share, float)
 
 
 def predict(scene, params, model: dict, share: float = 1.0) -> float:

@@ -1,4 +1,13 @@
-"""Wall-time cost model of a level's production runs, validated on runs it was not fitted to.
+"""The cost model's coefficients, fitted and validated in one place; :func:`lbmpipe.cost.predict`
+evaluates them for a scene (its formula is in :mod:`lbmpipe.cost`).
+
+Two fits, to two sets of runs: :func:`build` fits a level's production runs and validates them on
+runs it was not fitted to (``tables/cost_model.json``, below); :func:`fit_cost_model` fits the
+accuracy-cost study's runs and the case runs present (``study/cost_model.json``, non-negative
+least squares on relative residuals; no share of a core, no ``s_per_step``). :func:`read_benchmark`,
+:func:`run_work` and :func:`links_per_area` read a run's time and work for both.
+
+Wall-time cost model of a level's production runs, validated on runs it was not fitted to.
 
 Every run times each effect of its step (``summary.json`` ``effects``). The model charges each
 group of effects to the work it scales with, so that every coefficient is measured on its own
@@ -312,10 +321,8 @@ def model_predict_work(model: dict, node_updates, link_updates=0.0, particle_ste
     """The cost model on work counts (arrays or scalars): wall seconds, or with ``wall=False``
     the quantity the model was fitted on (CPU seconds for a ``cpu_s`` model)."""
     per_thread = wall or model.get("work_per_thread_in_fit", True)
-    t = np.maximum(np.asarray(threads, dtype=float), 1.0) if per_thread else 1.0
-    return (model["intercept_s"] + (model["s_per_node_update"] * np.asarray(node_updates, float)
-                                    + model["s_per_link_update"] * np.asarray(link_updates, float)
-                                    + model["s_per_particle_step"] * np.asarray(particle_steps, float)) / t)
+    # the work is already summed over the steps: one step of it, through the one formula
+    return predict_work(model, 1.0, node_updates, link_updates, particle_steps, threads if per_thread else 1.0)
 
 
 def links_per_area(summary: dict, static_csv: Path | None = None, scene_data: dict | None = None) -> float:
