@@ -274,7 +274,7 @@ def fit_cost_model(df: pd.DataFrame, target: str = "cpu_s") -> dict:
     terms are not divided by the threads; the model then predicts wall time as the CPU time
     spread ideally over the threads. A feature that is zero in every row is left out
     (coefficient 0, listed under ``not_identified``). Returns the model dict
-    :func:`predict_seconds` reads."""
+    :func:`lbmpipe.cost.predict` evaluates."""
     from scipy.optimize import nnls
 
     d = df[np.isfinite(df[target].astype(float)) & (df[target].astype(float) > 0)].copy()
