@@ -100,31 +100,35 @@ def scene_particle_load(scene) -> tuple[int, float]:
 
 def predict_work(model: dict, steps, nodes, links=0.0, particles=0.0, threads=1, share=1.0):
     """Wall seconds of runs given their work (scalars or arrays) under ``model``, each thread
-    getting ``share`` of a core (1: a core of its own); the module docstring's formula."""
+    getting ``share`` of a core (1: a core of its own); the module docstring's formula. A model
+    fitted on work summed over the steps (the study's) is evaluated on those sums with ``steps=1``."""
     t = np.maximum(np.asarray(threads, dtype=float), 1.0)
-    steps = np.asarray(steps, float)
-    # work summed over the steps first (node updates, link updates, particle steps): the order the
-    # study's recorded predictions were computed in, so that they stay the same to the last bit
-    work_s = (model["s_per_node_update"] * (np.asarray(nodes, float) * steps)
-              + model["s_per_link_update"] * (np.asarray(links, float) * steps)
-              + model["s_per_particle_step"] * (np.asarray(particles, float) * steps)
-              + model.get("s_per_step", 0.0) * steps)
-    return (model["intercept_s"] + work_s / t) / np.asarray(share, float)
+    per_step = (model["s_per_node_update"] * np.asarray(nodes, float) + model["s_per_link_update"] * np.asarray(links, float)
+                + model["s_per_particle_step"] * np.asarray(particles, float) + model.get("s_per_step", 0.0))
+    return (model["intercept_s"] + np.asarray(steps, float) * per_step / t) / np.asarray(share, float)
 
 
-def predict(scene, params, model: dict, share: float = 1.0) -> float:
-    """Predicted wall seconds of a validated ``Scene`` with lattice parameters ``params``
-    (``lbmpipe.units.derive``) under a fitted ``model`` (:mod:`lbmpipe.reproduction.runcost`; one
-    processor's coefficients from :func:`for_host`), each thread getting ``share`` of a core.
-    The particles' links are estimated from their surface area (the model's ``links_per_area_lu``,
-    else ``D3Q15_LINKS_PER_AREA``), their count as the packer or random placement would make it;
-    threads are the scene's ``run.threads`` (else the model's ``threads``, else 1)."""
+def scene_work(scene, params, model: dict) -> tuple[int, int, float, int, int]:
+    """(steps, fluid nodes, particle boundary links, particles, threads) of a validated ``Scene``
+    with lattice parameters ``params``: the links estimated from the particles' surface area (the
+    model's ``links_per_area_lu``, else ``D3Q15_LINKS_PER_AREA``), their count as the packer or
+    random placement would make it; threads are the scene's ``run.threads`` (else the model's
+    ``threads``, else 1)."""
     count, area_mm2 = scene_particle_load(scene)
     lpa = model.get("links_per_area_lu")
     lpa = float(lpa) if lpa is not None and math.isfinite(float(lpa)) else D3Q15_LINKS_PER_AREA
     links = lpa * area_mm2 / scene.numerics.dx_mm**2
     threads = scene.run.threads or model.get("threads", 1)
-    return float(predict_work(model, params.n_steps, params.fluid_nodes, links, count, threads, share))
+    return params.n_steps, params.fluid_nodes, links, count, threads
+
+
+def predict(scene, params, model: dict, share: float = 1.0) -> float:
+    """Predicted wall seconds of a validated ``Scene`` with lattice parameters ``params``
+    (``lbmpipe.units.derive``) under a fitted ``model`` (:mod:`lbmpipe.reproduction.runcost`; one
+    processor's coefficients from :func:`for_host`), each thread getting ``share`` of a core: its
+    work (:func:`scene_work`) through :func:`predict_work`."""
+    steps, nodes, links, count, threads = scene_work(scene, params, model)
+    return float(predict_work(model, steps, nodes, links, count, threads, share))
 
 
 def for_host(model: dict, host: str | None) -> tuple[dict, bool]:

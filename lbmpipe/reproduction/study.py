@@ -3,7 +3,7 @@
 The study's settings, references and runs are :mod:`lbmpipe.reproduction.study_plan`'s; each run's
 error is read by :mod:`lbmpipe.reproduction.study_errors`. This module collects them with the
 cost of every run (:func:`collect`; the cost model is fitted by
-:func:`lbmpipe.reproduction.runcost.fit_cost_model` and predicts with :func:`lbmpipe.cost.predict`),
+:func:`lbmpipe.reproduction.runcost.fit_cost_model` and evaluated by :func:`lbmpipe.cost.predict_work`),
 finds each reference's Pareto front and the cheapest setting meeting its target
 (:func:`recommend`), and writes the Markdown reports and figures (:func:`report`).
 """
@@ -19,7 +19,7 @@ import numpy as np
 import pandas as pd
 from matplotlib import ticker
 
-from ..cost import predict
+from ..cost import scene_work
 from ..scene import Scene
 from ..units import derive
 from .cases import case_scene
@@ -150,7 +150,10 @@ def _joint(df, targets, cost, model, case_scene, case_threads=None) -> dict:
             data.setdefault("run", {})["threads"] = int(case_threads)
         try:
             sc = Scene.model_validate(data)
-            rec["predicted_case_seconds"] = predict(sc, derive(sc), model)
+            steps, nodes, links, count, threads = scene_work(sc, derive(sc), model)
+            # the study's model is fitted on the work summed over the steps: evaluated on those sums
+            rec["predicted_case_seconds"] = float(model_predict_work(model, float(nodes) * steps, links * steps,
+                                                                     count * steps, threads))
             rec["predicted_case"] = sc.name
             rec["predicted_case_threads"] = sc.run.threads
         except Exception as exc:  # a recommendation is still useful without the prediction
