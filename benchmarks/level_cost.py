@@ -4,9 +4,9 @@ step, summed for 2 cores and as the longest run for a cluster with a core per ru
     python benchmarks/level_cost.py                       # the config's default level
     python benchmarks/level_cost.py --level credible
 
-A run's wall time comes from its own benchmark (runs done) or from the level's wall-time cost model
-(``lbmpipe.reproduction.runcost``), fitted to the runs done here and validated with each case family
-held out; its median error is printed. Prints one line per run and the totals; the machine's speed
+A run's wall time comes from its own benchmark (runs done) or from the cost model
+(``lbmpipe.cost.predict``) with the coefficients ``lbmpipe.reproduction.runcost`` fits to the runs
+done here and validates with each case family held out; its median error is printed. Prints one line per run and the totals; the machine's speed
 enters through the runs done here, so quote it with the host (benchmarks/README.md).
 """
 
@@ -21,6 +21,7 @@ import yaml
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from lbmpipe.cost import for_host, predict  # noqa: E402
 from lbmpipe.outputs import host  # noqa: E402
 from lbmpipe.reproduction import runcost  # noqa: E402
 from lbmpipe.reproduction.health import read_json  # noqa: E402
@@ -55,7 +56,7 @@ def main(argv=None) -> int:
         print(f"(level {level} has {len(done)} runs: predicting with level {base}'s cost model)")
 
     cpu = host()["cpu"]
-    used, own = runcost.for_host(model, cpu)  # this processor's coefficients if the model has runs of it
+    used, own = for_host(model, cpu)  # this processor's coefficients if the model has runs of it
     rows, unpackable, own_core = [], [], {}
     for r in runs:
         if _status(level_dir, r) == "unpackable" or _status(Path(args.results) / "paper", split_run(r)[0]) == "unpackable":
@@ -63,14 +64,14 @@ def main(argv=None) -> int:
             continue
         sc = _scene(config, level, r)
         params = derive(sc)
-        own_core[r] = runcost.predict_scene(used, sc, params, 1.0)
+        own_core[r] = predict(sc, params, used, 1.0)
         if r in done:
             rows.append((r, params.n_steps, float(done[r]), "measured"))
         elif (status := _status(level_dir, r)) not in (None, "completed"):  # ran and ended early: a full rerun's cost
             rows.append((r, params.n_steps, own_core[r], f"ended {status}"))
         else:
             share = used.get("median_cpu_share", 1.0)  # under the conditions of the runs measured here
-            rows.append((r, params.n_steps, runcost.predict_scene(used, sc, params, share), "cost model"))
+            rows.append((r, params.n_steps, predict(sc, params, used, share), "cost model"))
 
     print(f"level {level}: {len(runs)} runs, {len(done)} done here; cost model fitted to {model['n_runs']} runs, "
           f"median error {100 * model['median_abs_rel_error_median_share']:.1f} % at the median share of a core "

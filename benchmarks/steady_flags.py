@@ -20,7 +20,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from lbmpipe.reproduction.literate import stationarity_section  # noqa: E402
+from lbmpipe.reproduction.document_sections import stationarity_section  # noqa: E402
 
 
 def main(argv=None) -> int:

@@ -14,7 +14,9 @@ import math
 import sys
 from pathlib import Path
 
+from lbmpipe.cost import for_host, predict
 from lbmpipe.inputs import InputError, check_memory, format_bytes, memory_estimate
+from lbmpipe.outputs import host
 from lbmpipe.scene import Scene, SceneError, load_scene
 from lbmpipe.units import LatticeParams, derive
 
@@ -76,7 +78,7 @@ COST_MODEL_PATHS = (tuple(f"results/{lvl}/tables/cost_model.json" for lvl in ("c
 
 
 def find_cost_model(explicit: str | None = None) -> tuple[dict | None, str | None]:
-    """A fitted cost model (``lbmpipe.reproduction.runcost`` or ``lbmpipe.reproduction.study.fit_cost_model``):
+    """A fitted cost model (``lbmpipe.reproduction.runcost``: ``write`` or ``fit_cost_model``):
     ``explicit`` if given, else the first of ``COST_MODEL_PATHS`` under the current directory."""
     import json
 
@@ -132,29 +134,25 @@ def format_report(scene: Scene, params: LatticeParams, source: str = "", cost_mo
 
 
 def _predicted_text(scene: Scene, params: LatticeParams, model: dict, path: str) -> str:
-    """The cost model's wall-time prediction with the error it was validated to."""
-    if "s_per_step" in model:  # wall-time model of a level's production runs
-        from .outputs import host
-        from .reproduction.runcost import for_host, predict_scene
-
-        cpu = host()["cpu"]
-        used, own = for_host(model, cpu)
+    """The cost model's wall-time prediction (``lbmpipe.cost.predict``) with the error its fit
+    was validated to: a level's production runs held out by family, or the study's runs."""
+    cpu = host()["cpu"]
+    used, own = for_host(model, cpu)
+    if "s_per_step" in used:  # fitted to a level's production runs, validated with each family held out
         err, err_med = used.get("median_abs_rel_error", float("nan")), used.get("median_abs_rel_error_median_share", float("nan"))
         share = float(used.get("median_cpu_share", 1.0))
         here = int((model.get("runs_by_host") or {}).get(cpu, 0))
         runs = (f"{used.get('n_validated', 0)} production runs on this processor ({cpu}) held out of the fit" if own else
                 f"{used.get('n_validated', 0)} production runs held out of the fit; {here} on this processor ({cpu}), too "
                 f"few families to validate its own coefficients, and its fluid step may cost another time per node")
-        text = (f"{_duration(predict_scene(used, scene, params))} wall with a core per thread of its own, "
-                f"{_duration(predict_scene(used, scene, params, share))} with the {share:.2f} of a core the "
+        text = (f"{_duration(predict(scene, params, used))} wall with a core per thread of its own, "
+                f"{_duration(predict(scene, params, used, share))} with the {share:.2f} of a core the "
                 f"production runs got  (median error {100 * err:.0f} % given a run's share, {100 * err_med:.0f} % at the "
                 f"median share, on {runs}: {path})")
         if (scene.run.threads or 1) not in model.get("threads_measured", [1]):
             text += f"; not validated at {scene.run.threads} threads"
         return text
-    from .reproduction.study import predict_seconds
-
-    return (f"{_duration(predict_seconds(scene, params, model))}  (cost model of {model.get('n_runs', '?')} runs, "
+    return (f"{_duration(predict(scene, params, used))}  (cost model of {model.get('n_runs', '?')} runs, "
             f"rms error {100 * model.get('rel_rms_error', float('nan')):.0f} %: {path})")
 
 

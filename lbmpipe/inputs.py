@@ -18,6 +18,8 @@ from pathlib import Path
 
 import numpy as np
 
+from lbmpipe.particles.shapes import scene_shape, volume
+
 #: bytes per node beside the two population arrays: moments at a sample (4 float64), the profile
 #: sums (2 float64), masks and owner maps, and the temporaries of the initial equilibrium
 EXTRA_BYTES_PER_NODE = 64
@@ -174,9 +176,7 @@ def bounding_radius_mm(p) -> float:
 
 
 def body_volume_mm3(p) -> float:
-    h = half_extents(p)
-    return {"sphere": 4 / 3 * math.pi * h[0] ** 3, "cylinder": math.pi * h[0] ** 2 * 2 * h[2],
-            "cube": 8 * h[0] ** 3}[p.shape]
+    return volume(*scene_shape(p.shape, p.diameter_mm, p.length_mm, p.edge_mm))
 
 
 def domain_volume_mm3(scene) -> float:

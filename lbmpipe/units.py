@@ -19,6 +19,7 @@ import math
 from dataclasses import dataclass, field, replace
 from lbmpipe.errors import SceneError
 from lbmpipe.fluid.lattice import CS2
+from lbmpipe.particles.shapes import scene_shape, volume
 
 CS = math.sqrt(CS2)
 #: BGK is (linearly) stable only for tau > 1/2, and in practice marginal just above it.
@@ -214,11 +215,8 @@ def _fixed_bodies(scene: "Scene", shape: tuple[int, int, int]) -> tuple[int, flo
     box = float(shape[0] * shape[1] * shape[2])
 
     def vol(p) -> float:
-        if p.shape == "sphere":
-            return math.pi / 6.0 * (p.diameter_mm / dx) ** 3
-        if p.shape == "cylinder":
-            return math.pi / 4.0 * (p.diameter_mm / dx) ** 2 * (p.length_mm / dx)
-        return (p.edge_mm / dx) ** 3
+        kind, h = scene_shape(p.shape, p.diameter_mm, p.length_mm, p.edge_mm)
+        return volume(kind, h / dx)
 
     n, d_sum, v_sum = 0, 0.0, 0.0
     for p in [b for b in ps.bodies if b.fixed] + [g for g in ps.random if g.fixed]:

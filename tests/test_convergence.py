@@ -90,7 +90,7 @@ def test_a_case_missing_at_a_spacing_says_how_many_were_run(tmp_path):
 
 def test_accuracy_against_cost_draws_each_observable_at_each_spacing_with_its_cost(tmp_path, monkeypatch):
     # three spacings at costs 1, 8 and 64 loop-s per simulated s; the flagged finest value is hollow
-    from lbmpipe.reproduction import figures
+    from lbmpipe.reproduction import comparison_figures as figures
 
     for level, h, cost in (("coarse", 2.0, 1.0), ("base", 1.0, 8.0), ("fine", 0.5, 64.0)):
         _case(tmp_path, level, "cyl16x16_c30_re9.4", 1.0 + 0.1 * h * h, 0.02, profile_scale=0.04 * h * h)

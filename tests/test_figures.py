@@ -8,6 +8,7 @@ import pandas as pd
 import pytest
 
 from lbmpipe.reproduction import figures as F
+from lbmpipe.reproduction import snapshots as snap
 from lbmpipe.reproduction import statistics as S
 from lbmpipe.particles.rigid import quat_from_axis_angle
 
@@ -145,7 +146,7 @@ def test_snapshots_draw_one_png_per_particle_case_including_unpackable(tmp_path)
                                                           "concentration": 0.3}},
              "cube": {"reynolds": 9.4, "particles": {"shape": "cube", "edge_mm": 8, "concentration": 0.3}},
              "cube_hc": {"reynolds": 9.4, "particles": {"shape": "cube", "edge_mm": 8, "concentration": 0.5}}}
-    out = F.snapshots(fid, cases)
+    out = snap.snapshots(fid, cases)
     assert [p.name for p in out] == ["fig3_cyl_re9.4.png", "fig3_cube.png", "fig3_cube_hc.png"]
     assert all(p.stat().st_size > 1000 for p in out)
 
@@ -155,7 +156,7 @@ def test_snapshot_has_few_ticks_on_the_short_axes_and_the_colour_bar_beside_the_
     import matplotlib.pyplot as plt
 
     _snapshot_case(tmp_path / "case", shape, 5)
-    fig = F.snapshot_figure(tmp_path / "case", title="case")
+    fig = snap.snapshot_figure(tmp_path / "case", title="case")
     ax, cax = fig.axes[0], fig.axes[-1]
     renderer = fig.canvas.get_renderer()
     fig.canvas.draw()
@@ -172,11 +173,11 @@ def test_snapshot_has_few_ticks_on_the_short_axes_and_the_colour_bar_beside_the_
 
 
 def test_cylinder_mesh_is_closed_around_its_axis_and_cube_faces_lie_on_the_cube():
-    side, caps = F._cylinder_faces(8.0, 16.0, n=12)
+    side, caps = snap._cylinder_faces(8.0, 16.0, n=12)
     assert side.shape == (12, 4, 3) and caps.shape == (2, 12, 3)
     np.testing.assert_allclose(np.hypot(side[..., 0], side[..., 1]), 4.0)
     np.testing.assert_allclose(np.abs(side[..., 2]), 8.0)
-    (cube,) = F._cube_faces(8.0)
+    (cube,) = snap._cube_faces(8.0)
     assert cube.shape == (6, 4, 3)
     # each face has one coordinate pinned at +-4 and spans the other two
     assert np.all(np.sum(np.isclose(np.abs(cube), 4.0), axis=2) == 3)
@@ -301,7 +302,7 @@ def test_snapshot_gallery_tiles_the_snapshots_present_and_writes_nothing_without
     figs.mkdir()
     for case in ("a", "b", "c"):
         F.plt.imsave(figs / f"fig3_{case}.png", np.full((20, 10, 3), 0.5))
-    out = F.snapshot_gallery(tmp_path, ["a", "missing", "b", "c"], ncols=2)
+    out = snap.snapshot_gallery(tmp_path, ["a", "missing", "b", "c"], ncols=2)
     assert out == figs / "fig3_gallery.png" and out.is_file()
-    assert F.snapshot_gallery(tmp_path, ["missing"], tmp_path / "none.png") is None
+    assert snap.snapshot_gallery(tmp_path, ["missing"], tmp_path / "none.png") is None
     assert not (tmp_path / "none.png").exists()

@@ -10,7 +10,7 @@ import pandas as pd
 import pytest
 import yaml
 
-from lbmpipe.reproduction import claims, literate
+from lbmpipe.reproduction import claims, document_sections, equations, literate
 from lbmpipe.reproduction.cases import case_scene
 from lbmpipe.scene import Scene
 from lbmpipe.units import derive
@@ -20,14 +20,14 @@ REPO = Path(__file__).resolve().parents[1]
 
 @pytest.fixture(scope="module")
 def index():
-    return literate.equation_index(REPO / "lbmpipe")
+    return equations.equation_index(REPO / "lbmpipe")
 
 
 def test_every_equation_of_the_paper_is_cited_by_a_function_or_class_docstring(index):
-    missing = [n for n in range(1, literate.N_EQUATIONS + 1)
+    missing = [n for n in range(1, equations.N_EQUATIONS + 1)
                if not any(r.qualname != "<module>" for r in index.get(n, []))]
     assert missing == []
-    assert sorted(literate.EQUATIONS) == list(range(1, literate.N_EQUATIONS + 1))
+    assert sorted(equations.EQUATIONS) == list(range(1, equations.N_EQUATIONS + 1))
 
 
 def test_every_equation_reference_is_a_definition_whose_docstring_cites_it(index):
@@ -48,7 +48,7 @@ def test_every_equation_reference_is_a_definition_whose_docstring_cites_it(index
                 name = ref.qualname.rsplit(".", 1)[-1]
                 assert re.match(rf"\s*(async\s+def|def|class)\s+{re.escape(name)}\b", lines[ref.line - 1]), ref
                 doc = ast.get_docstring(defs[ref.line], clean=False)
-            assert n in literate.cited_equations(doc), (n, ref)
+            assert n in equations.cited_equations(doc), (n, ref)
 
 
 def test_equations_cited_in_subpackages_are_indexed_with_their_paths(index, tmp_path):
@@ -59,11 +59,11 @@ def test_equations_cited_in_subpackages_are_indexed_with_their_paths(index, tmp_
     pkg = tmp_path / "lbmpipe"
     (pkg / "deep" / "deeper").mkdir(parents=True)
     (pkg / "deep" / "deeper" / "m.py").write_text('def f():\n    """Implements Eq. (3)."""\n')
-    assert literate.equation_index(pkg)[3] == [literate.Ref("lbmpipe/deep/deeper/m.py", "f", 1)]
+    assert equations.equation_index(pkg)[3] == [equations.Ref("lbmpipe/deep/deeper/m.py", "f", 1)]
 
 
 def test_citation_forms_single_range_list_pair_and_subequation_are_read():
-    cite = literate.cited_equations
+    cite = equations.cited_equations
     assert cite("Ladd's rule, Eq. (8).") == {8}
     assert cite("coupling, Eqs. (8)-(12), then") == {8, 9, 10, 11, 12}
     assert cite("Eqs. (14), (15) and Eqs. (16) and (18)") == {14, 15, 16, 18}
@@ -73,10 +73,10 @@ def test_citation_forms_single_range_list_pair_and_subequation_are_read():
 
 
 def test_number_format_keeps_three_significant_digits_and_marks_missing_values():
-    assert literate.fmt(1.7812) == "1.78"
-    assert literate.fmt(0.000123456) == "1.23e-04"
-    assert literate.fmt(2000.0) == "2000"
-    assert literate.fmt(float("nan")) == "–"
+    assert document_sections.fmt(1.7812) == "1.78"
+    assert document_sections.fmt(0.000123456) == "1.23e-04"
+    assert document_sections.fmt(2000.0) == "2000"
+    assert document_sections.fmt(float("nan")) == "–"
 
 
 # ---------------------------------------------------------------- a synthetic results tree
@@ -125,9 +125,9 @@ def document(tmp_path, config):
 
 def test_rendered_document_has_no_stale_links_and_links_every_equation(document):
     out, _ = document
-    assert literate.check_links(out, REPO) == []
+    assert equations.check_links(out, REPO) == []
     text = out.read_text()
-    for n in range(1, literate.N_EQUATIONS + 1):
+    for n in range(1, equations.N_EQUATIONS + 1):
         assert f'"Eq. {n}: ' in text, n
     assert out.with_suffix(".html").read_text().count("<table>") >= 3
 
@@ -138,14 +138,14 @@ def test_document_numbers_come_from_the_results_and_the_derived_lattice(document
     fid = config["fidelities"]["paper"]
     params = derive(Scene.model_validate(case_scene("flow_re26", {"reynolds": 26}, "paper", fid)))
     row = next(line for line in text.splitlines() if line.startswith("| **paper** | 26 |"))
-    assert f"| {literate.fmt(params.tau)} |" in row and f"| {literate.fmt(params.mach_max)} |" in row
-    assert f"| {literate.fmt(params.n_steps)} |" in row
+    assert f"| {document_sections.fmt(params.tau)} |" in row and f"| {document_sections.fmt(params.mach_max)} |" in row
+    assert f"| {document_sections.fmt(params.n_steps)} |" in row
     # runtime: 7654 s per case from runtime.csv, reported in hours and against the paper's 24 h
-    assert literate.fmt(7654.0 / 3600) in text and literate.fmt(7654.0 / 3600 / 24.0) in text
+    assert document_sections.fmt(7654.0 / 3600) in text and document_sections.fmt(7654.0 / 3600 / 24.0) in text
     verdicts = pd.read_csv(fid_dir / "claims.csv")["verdict"]
     assert all(f"| {v} |" in text for v in verdicts)
     assert "![fig4_cylinders](../figures/fig4_cylinders.png)" in text
-    assert literate.PAPER_CAPTIONS["4"] in text
+    assert document_sections.PAPER_CAPTIONS["4"] in text
 
 
 def test_sections_without_input_say_they_were_not_built(tmp_path, config):
@@ -155,7 +155,7 @@ def test_sections_without_input_say_they_were_not_built(tmp_path, config):
     text = out.read_text()
     for rel in ("claims.csv", "tables/stability.csv", "tables/runtime.csv", "study/", "figures/fig*.png"):
         assert re.search(rf"not built at this level: `[^`]*/{re.escape(rel)}` missing", text), rel
-    assert literate.check_links(out, REPO) == []
+    assert equations.check_links(out, REPO) == []
 
 
 def copy_repo(dst: Path) -> Path:
@@ -169,7 +169,7 @@ def test_check_links_reports_links_whose_definition_moved_or_no_longer_cites_the
     fid_dir = repo / "results" / "synthetic"
     fid_dir.mkdir(parents=True)
     out = literate.build_document(repo, fid_dir, "smoke", config, fid_dir / "reproduction.md")
-    assert literate.check_links(out, repo) == []
+    assert equations.check_links(out, repo) == []
     links = re.findall(r'\]\(([^)\s]+\.py)#L(\d+) "Eq\. (\d+): ([^"]+)"\)', out.read_text())
     by_file = {}
     for rel, line, eq, qual in links:
@@ -178,20 +178,20 @@ def test_check_links_reports_links_whose_definition_moved_or_no_longer_cites_the
     # shift every definition of lattice.py down by one line
     lattice = repo / "lbmpipe" / "fluid" / "lattice.py"
     lattice.write_text("\n" + lattice.read_text())
-    stale = literate.check_links(out, repo)
+    stale = equations.check_links(out, repo)
     assert stale and all(s.startswith("lbmpipe/fluid/lattice.py#L") and "no longer holds" in s for s in stale)
     assert len(stale) == len(by_file["lattice.py"])
 
     # the line still holds the definition but its docstring stops citing the equation
     lattice.write_text(lattice.read_text()[1:].replace("Table 1 and Eq. (7)", "Table 1"))
-    stale = literate.check_links(out, repo)
+    stale = equations.check_links(out, repo)
     line = next(ln for ln, eq, qual in by_file["lattice.py"] if qual == "get_lattice")
     assert f"lbmpipe/fluid/lattice.py#L{line}: docstring of get_lattice no longer cites Eq. (7)" in stale
     assert all(s.startswith("lbmpipe/fluid/lattice.py") for s in stale)
 
     # a file that is gone
     (repo / "lbmpipe" / "fluid" / "observables.py").unlink()
-    stale = literate.check_links(out, repo)
+    stale = equations.check_links(out, repo)
     assert any(s.startswith("lbmpipe/fluid/observables.py#L") and s.endswith("file missing") for s in stale)
 
 
@@ -202,7 +202,7 @@ def test_committed_reproduction_links_still_point_at_the_code_that_implements_ea
     md = REPO / "paper" / f"reproduction_{level}.md"
     if not md.exists():
         pytest.skip(f"{md.name} is not committed")
-    stale = literate.check_links(md, REPO)
+    stale = equations.check_links(md, REPO)
     assert stale == [], (f"{len(stale)} stale links in {md.name}; rebuild it with "
                          f"`lbmpipe document --fidelity {level}`: {stale[:5]}")
 
@@ -252,7 +252,7 @@ def test_committed_document_anchors_each_claim_once_and_shows_one_snapshot_galle
     assert len(snapshots) == 1 and snapshots[0].endswith("figures/fig3_gallery.png")
     assert (md.parent / snapshots[0]).resolve().is_file()
     # the key equations are displayed maths, converted to MathML
-    assert page.count('display="block"') >= len(literate.KEY_EQUATIONS)
+    assert page.count('display="block"') >= len(equations.KEY_EQUATIONS)
 
 
 def test_word_count_leaves_out_link_targets_and_table_rules():
@@ -269,4 +269,4 @@ def test_the_document_of_an_accurate_method_level_builds_and_names_the_level_it_
     paper_level = config["fidelities"]["credible_accurate"]["compare_with"]
     assert "## What the method changes" in text and f"`results/{paper_level}/method/`" in text
     assert "### The paired runs of the method comparison" not in text
-    assert literate.check_links(out, REPO) == []
+    assert equations.check_links(out, REPO) == []

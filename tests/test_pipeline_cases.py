@@ -224,16 +224,16 @@ def test_assembled_step_orders_walls_particle_fills_sweep_flux_correction_contro
 
 
 def test_cases_study_and_stability_build_the_same_paper_pipe_flow_and_time_step():
-    from lbmpipe.reproduction import pipe, stability, study
+    from lbmpipe.reproduction import pipe, stability, study_plan
 
     case = cases.case_scene("flow_re26", {"reynolds": 26}, "tiny", {**SMOKE, "re26_dt_factor": 1.0})
     stab = stability.StabilityCase("x", "", reynolds=26.0, particles=None, kind="flow").scene(5.0, 10)
-    settings = study.study_settings({"study": {}, "fidelities": {"tiny": SMOKE}}, "tiny")
+    settings = study_plan.study_settings({"study": {}, "fidelities": {"tiny": SMOKE}}, "tiny")
     for data in (case, stab):
         assert data["domain"] == pipe.PIPE
         assert data["driving"]["flow_rate_m3_s"] == pipe.FLOWS[26.0]
         assert data["numerics"]["dt_s"] == pipe.time_step(5.0)
-    s = study.pipe_scene(settings, {"dx_mm": 5.0, "dt_factor": 1.0, "collision": "bgk", "wall": "bounce_back",
+    s = study_plan.pipe_scene(settings, {"dx_mm": 5.0, "dt_factor": 1.0, "collision": "bgk", "wall": "bounce_back",
                                     "precision": "float64"})
     assert s["domain"]["diameter_mm"] == pipe.PIPE["diameter_mm"]
     assert s["driving"]["flow_rate_m3_s"] == pipe.FLOWS[9.4]

@@ -8,6 +8,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
+from lbmpipe import cost
 from lbmpipe.reproduction import runcost
 
 NODE, LINK, PART, STEP, SETUP = 50e-9, 30e-9, 10e-6, 5e-4, 3.0
@@ -91,8 +92,8 @@ def test_a_resumed_run_counts_its_loop_and_set_up_not_its_last_process_alone(tmp
 def test_work_divides_over_threads_in_the_prediction():
     model = {"intercept_s": 2.0, "s_per_step": 1e-3, "s_per_node_update": 1e-8, "s_per_link_update": 2e-8,
              "s_per_particle_step": 1e-5}
-    one = runcost.predict(model, 1000, 100000, 50000, 20, threads=1)
-    two = runcost.predict(model, 1000, 100000, 50000, 20, threads=2)
+    one = cost.predict_work(model, 1000, 100000, 50000, 20, threads=1)
+    two = cost.predict_work(model, 1000, 100000, 50000, 20, threads=2)
     assert one == pytest.approx(2.0 + 1000 * (1e-3 + 1e-3 + 1e-3 + 2e-4))
     assert two - 2.0 == pytest.approx((one - 2.0) / 2)
 
@@ -237,9 +238,9 @@ def test_each_processor_is_predicted_from_its_own_runs_and_a_lone_unrecorded_fam
     assert model["hosts"]["slow"]["s_per_node_update"] == pytest.approx(NODE)
     assert model["hosts"]["fast"]["median_abs_rel_error"] == pytest.approx(0.0, abs=1e-9)
     # a prediction for a processor the model knows uses its coefficients; an unknown one, all runs'
-    own, is_own = runcost.for_host(model, "fast")
+    own, is_own = cost.for_host(model, "fast")
     assert is_own and own["s_per_node_update"] == model["hosts"]["fast"]["s_per_node_update"]
-    pooled, is_own = runcost.for_host(model, "another")
+    pooled, is_own = cost.for_host(model, "another")
     assert not is_own and pooled["s_per_node_update"] == model["s_per_node_update"]
 
 

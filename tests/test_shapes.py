@@ -1,10 +1,13 @@
 """Shapes: inside test, volume, principal moments, support function, bounding radius."""
 
 import math
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
 
+from lbmpipe.cost import particle_area_volume
+from lbmpipe.inputs import body_volume_mm3
 from lbmpipe.particles import shapes
 from lbmpipe.particles.shapes import (
     CUBE,
@@ -233,3 +236,21 @@ def test_make_shape_half_extents_and_errors():
 
 def test_shape_kind_codes_are_the_contract_values():
     assert (shapes.SPHERE, shapes.CYLINDER, shapes.CUBE) == (0, 1, 2)
+
+
+def test_surface_area_is_the_closed_form_of_each_shape_and_of_a_box():
+    assert shapes.surface_area(SPHERE, [2.0, 2.0, 2.0]) == pytest.approx(4 * math.pi * 4.0)
+    assert shapes.surface_area(CYLINDER, [4.0, 4.0, 8.0]) == pytest.approx(2 * math.pi * 16 + 2 * math.pi * 4 * 16)
+    assert shapes.surface_area(CUBE, [4.0, 4.0, 4.0]) == 6 * 8.0**2
+    assert shapes.surface_area(CUBE, [1.0, 2.0, 3.0]) == pytest.approx(2 * (2 * 4 + 4 * 6 + 2 * 6))
+
+
+def test_scene_sizes_give_the_same_volume_everywhere_the_package_needs_one():
+    # the scene checks (inputs), the run-time model (cost) and the lattice estimates (units) all
+    # take a particle's volume from shapes.volume
+    for p, exact in ((SimpleNamespace(shape="cylinder", diameter_mm=8.0, length_mm=16.0, edge_mm=None), math.pi * 16 * 16),
+                     (SimpleNamespace(shape="cube", diameter_mm=None, length_mm=None, edge_mm=8.0), 512.0),
+                     (SimpleNamespace(shape="sphere", diameter_mm=6.0, length_mm=None, edge_mm=None), 36 * math.pi)):
+        v = shapes.volume(*shapes.scene_shape(p.shape, p.diameter_mm, p.length_mm, p.edge_mm))
+        assert v == pytest.approx(exact)
+        assert body_volume_mm3(p) == v and particle_area_volume(p.shape, p.diameter_mm, p.length_mm, p.edge_mm)[1] == v

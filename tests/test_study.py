@@ -1,4 +1,5 @@
-"""The accuracy-cost study (lbmpipe.reproduction.study): its scenes, Pareto front, recommendation and cost model.
+"""The accuracy-cost study (lbmpipe.reproduction.study_plan, study_errors, study): its scenes, Pareto front,
+recommendation and cost model (fitted by lbmpipe.reproduction.runcost, evaluated by lbmpipe.cost.predict).
 
 The study's physics is the solver's (validated elsewhere); here: every knob setting builds a
 valid scene that differs from the base in that knob alone, the bookkeeping picks the right
@@ -13,7 +14,8 @@ import pandas as pd
 import pytest
 import yaml
 
-from lbmpipe.reproduction import study
+from lbmpipe import cost
+from lbmpipe.reproduction import runcost, study, study_errors, study_plan
 from lbmpipe.scene import Scene
 from lbmpipe.units import derive
 
@@ -31,10 +33,10 @@ CONFIG = {
 
 @pytest.mark.parametrize("fidelity", ["smoke", "paper"])
 def test_every_knob_setting_is_a_valid_scene_differing_from_the_base_in_its_knob_only(fidelity):
-    s = study.study_settings(CONFIG, fidelity)
-    runs = study.plan(CONFIG, fidelity)
+    s = study_plan.study_settings(CONFIG, fidelity)
+    runs = study_plan.plan(CONFIG, fidelity)
     for ref in ("pipe", "drag"):
-        settings = study.knob_settings(s, ref)
+        settings = study_plan.knob_settings(s, ref)
         knobs = {k for k, _, _ in settings}
         assert {"dx", "dt", "collision", "precision"} <= knobs
         assert ("wall" in knobs) == (ref == "pipe")  # a particle surface has no wall scheme to choose
@@ -44,7 +46,7 @@ def test_every_knob_setting_is_a_valid_scene_differing_from_the_base_in_its_knob
         for knob, _, st in settings:
             if knob.startswith("combo"):
                 continue
-            changed = {k for k in study.KNOB_KEYS if st[k] != base[k]}
+            changed = {k for k in study_plan.KNOB_KEYS if st[k] != base[k]}
             key = {"dx": "dx_mm", "dt": "dt_factor"}.get(knob, knob)
             assert changed <= {key}, (knob, changed)
     for rid, spec in runs.items():
@@ -60,40 +62,40 @@ def test_every_knob_setting_is_a_valid_scene_differing_from_the_base_in_its_knob
             assert scene.numerics.wall == st["wall"] and params.reynolds == pytest.approx(9.4, rel=1e-9)
         else:
             # Stokes regime: the particle Reynolds number stays far below 1
-            geo = study.drag_geometry(s)
+            geo = study_plan.drag_geometry(s)
             re_p = 2 * geo["a_m"] * s["drag"]["superficial_velocity_m_s"] / geo["nu_m2_s"]
             assert re_p < 0.05
             assert scene.particles.bodies[0].fixed
 
 
 def test_drag_sphere_keeps_its_lattice_relative_offset_at_every_resolution():
-    s = study.study_settings(CONFIG, "paper")
-    geo = study.drag_geometry(s)
+    s = study_plan.study_settings(CONFIG, "paper")
+    geo = study_plan.drag_geometry(s)
     # c = 4/3 pi a^3 / L^3
     assert 4 / 3 * math.pi * geo["a_m"] ** 3 / geo["L_m"] ** 3 == pytest.approx(s["drag"]["concentration"])
     offs = []
     for dx in (2.5, 1.25):
-        sc = study.drag_scene(s, dict(s["base"], dx_mm=dx), 0)
+        sc = study_plan.drag_scene(s, dict(s["base"], dx_mm=dx), 0)
         offs.append((np.array(sc["particles"]["bodies"][0]["position_mm"]) - s["drag"]["box_mm"] / 2) / dx)
     assert np.allclose(offs[0], offs[1]) and np.all((offs[0] >= 0) & (offs[0] < 1))
 
 
 def test_sc_drag_reference_is_zick_homsy_at_tabulated_points_and_the_series_between():
-    assert study.sc_drag_reference(0.125) == 4.292
-    assert study.sc_drag_reference(0.064) == 2.810
+    assert study_plan.sc_drag_reference(0.125) == 4.292
+    assert study_plan.sc_drag_reference(0.064) == 2.810
     # Sangani & Acrivos's series agrees with the table to 0.1 % at c = 0.125 and 0.064
-    assert study.sc_drag_reference(0.1250001) == pytest.approx(4.292, rel=2e-3)
-    assert study.sc_drag_reference(0.0640001) == pytest.approx(2.810, rel=2e-3)
+    assert study_plan.sc_drag_reference(0.1250001) == pytest.approx(4.292, rel=2e-3)
+    assert study_plan.sc_drag_reference(0.0640001) == pytest.approx(2.810, rel=2e-3)
 
 
 def test_config_overrides_merge_over_the_level_defaults():
     cfg = dict(CONFIG, study={"smoke": {"drag": {"offsets": 2}, "targets": {"pipe": 0.02}}})
-    s = study.study_settings(cfg, "smoke")
+    s = study_plan.study_settings(cfg, "smoke")
     assert s["drag"]["offsets"] == 2 and s["targets"]["pipe"] == 0.02
-    assert s["targets"]["drag"] == study.DEFAULTS["targets"]["drag"]  # untouched keys survive
-    assert s["pipe"]["dx_mm"] == study.LEVEL_DEFAULTS["smoke"]["pipe"]["dx_mm"]
-    assert sum(r.startswith("drag_") for r in study.run_ids(cfg, "smoke")) == 2 * sum(
-        r.startswith("drag_") for r in study.run_ids(CONFIG, "smoke"))
+    assert s["targets"]["drag"] == study_plan.DEFAULTS["targets"]["drag"]  # untouched keys survive
+    assert s["pipe"]["dx_mm"] == study_plan.LEVEL_DEFAULTS["smoke"]["pipe"]["dx_mm"]
+    assert sum(r.startswith("drag_") for r in study_plan.run_ids(cfg, "smoke")) == 2 * sum(
+        r.startswith("drag_") for r in study_plan.run_ids(CONFIG, "smoke"))
 
 
 def test_pareto_front_keeps_exactly_the_undominated_points():
@@ -154,20 +156,20 @@ def test_cost_fit_recovers_known_coefficients_from_synthetic_runs():
                                    + truth["s_per_particle_step"] * ps) / threads
     df = pd.DataFrame({"node_updates": nu, "link_updates": lu, "particle_steps": ps, "threads": threads,
                        "wall_s": wall * (1 + 0.01 * rng.standard_normal(n))})
-    model = study.fit_cost_model(df, target="wall_s")
+    model = runcost.fit_cost_model(df, target="wall_s")
     for k, v in truth.items():
         assert model[k] == pytest.approx(v, rel=0.1), k
     assert model["rel_rms_error"] < 0.03
     # fitted on CPU time (work summed over threads), it predicts the same wall times
     df["cpu_s"] = truth["intercept_s"] + (wall - truth["intercept_s"]) * threads
-    cpu_model = study.fit_cost_model(df, target="cpu_s")
-    assert study.model_predict_work(cpu_model, nu, lu, ps, threads) == pytest.approx(wall, rel=1e-3)
+    cpu_model = runcost.fit_cost_model(df, target="cpu_s")
+    assert runcost.model_predict_work(cpu_model, nu, lu, ps, threads) == pytest.approx(wall, rel=1e-3)
     # without particle runs the particle terms are not identified rather than invented
-    bare = study.fit_cost_model(df[df["link_updates"] == 0], target="wall_s")
+    bare = runcost.fit_cost_model(df[df["link_updates"] == 0], target="wall_s")
     assert set(bare["not_identified"]) == {"link_updates", "particle_steps"} and bare["s_per_link_update"] == 0.0
 
 
-def test_predict_seconds_counts_nodes_steps_and_particle_links_of_a_scene():
+def test_cost_prediction_counts_nodes_steps_and_particle_links_of_a_scene():
     model = {"intercept_s": 2.0, "s_per_node_update": 1e-7, "s_per_link_update": 1e-7, "s_per_particle_step": 0.0,
              "links_per_area_lu": 5.0}
     data = {"name": "t", "domain": {"kind": "box", "size_mm": [20.0, 20.0, 20.0]},
@@ -175,14 +177,14 @@ def test_predict_seconds_counts_nodes_steps_and_particle_links_of_a_scene():
             "run": {"duration_s": 0.1, "spinup_s": 0.05, "sample_interval_s": 0.01, "threads": 1}}
     sc = Scene.model_validate(data)
     p = derive(sc)
-    assert study.predict_seconds(sc, p, model) == pytest.approx(2.0 + 1e-7 * 8000 * 100)
+    assert cost.predict(sc, p, model) == pytest.approx(2.0 + 1e-7 * 8000 * 100)
     data["particles"] = {"bodies": [{"shape": "cube", "edge_mm": 4.0, "position_mm": [10.0, 10.0, 10.0], "fixed": True}]}
     sc2 = Scene.model_validate(data)
     links = 5.0 * 6 * 16.0  # links per area x cube area in lattice units
-    assert study.predict_seconds(sc2, derive(sc2), model) == pytest.approx(2.0 + 1e-7 * (8000 + links) * 100)
+    assert cost.predict(sc2, derive(sc2), model) == pytest.approx(2.0 + 1e-7 * (8000 + links) * 100)
     data["run"]["threads"] = 2
     sc3 = Scene.model_validate(data)
-    assert study.predict_seconds(sc3, derive(sc3), model) == pytest.approx(2.0 + 1e-7 * (8000 + links) * 50)
+    assert cost.predict(sc3, derive(sc3), model) == pytest.approx(2.0 + 1e-7 * (8000 + links) * 50)
 
 
 def test_tiny_pipe_run_through_the_study_gives_a_finite_profile_error(tmp_path):
@@ -191,15 +193,15 @@ def test_tiny_pipe_run_through_the_study_gives_a_finite_profile_error(tmp_path):
                                                  "precisions": [], "length_mm": 10.0},
                                         "drag": {"dx_mm": [], "dt_factors": [], "collisions": [], "precisions": [],
                                                  "offsets": 0}}})
-    s = study.study_settings(cfg, "smoke")
+    s = study_plan.study_settings(cfg, "smoke")
     setting = dict(s["base"], dx_mm=5.0)
-    rid = study.run_id("pipe", setting)
-    assert rid in study.run_ids(cfg, "smoke")
+    rid = study_plan.run_id("pipe", setting)
+    assert rid in study_plan.run_ids(cfg, "smoke")
     run_dir = tmp_path / "smoke" / "study" / "runs" / rid
-    scene = study.write_run_scene(cfg, "smoke", rid, run_dir / "scene.yaml")
+    scene = study_plan.write_run_scene(cfg, "smoke", rid, run_dir / "scene.yaml")
     assert yaml.safe_load((run_dir / "scene.yaml").read_text())["numerics"]["dx_mm"] == 5.0
     assert derive(scene).n_steps == 200  # a few hundred steps
-    proc = study.run_timed(run_dir / "scene.yaml", run_dir, 1, tmp_path / "run.log", run_dir / "process.json")
+    proc = study_plan.run_timed(run_dir / "scene.yaml", run_dir, 1, tmp_path / "run.log", run_dir / "process.json")
     assert proc["returncode"] == 0 and 0 < proc["cpu_s"] < 10 * proc["wall_s"]
     bench = tmp_path / "smoke" / "study" / "benchmarks" / f"{rid}.tsv"
     bench.parent.mkdir(parents=True)
@@ -228,10 +230,10 @@ def _fake_case(root, level, case, dx, omega, duration=1.0):
 def test_observable_converges_towards_the_finest_level_present_and_says_when_there_is_only_one(tmp_path):
     case = "cyl8x16_c30_re9.4"
     _fake_case(tmp_path, "smoke", case, 2.5, (1.2, 1.0, 0.5))
-    rows = study.observable_rows(CONFIG, "smoke", tmp_path)
+    rows = study_errors.observable_rows(CONFIG, "smoke", tmp_path)
     assert len(rows) == 1 and math.isnan(rows[0]["error"]) and "only one fidelity level" in rows[0]["note"]
     _fake_case(tmp_path, "paper", case, 1.0, (1.0, 1.0, 0.5))
-    rows = {r["setting"]: r for r in study.observable_rows(CONFIG, "smoke", tmp_path)}
+    rows = {r["setting"]: r for r in study_errors.observable_rows(CONFIG, "smoke", tmp_path)}
     assert rows["smoke"]["error"] == pytest.approx(0.2 / math.sqrt(2.25))  # |(0.2, 0, 0)| / |(1, 1, 0.5)|
     assert math.isnan(rows["paper"]["error"]) and rows["paper"]["note"].startswith("reference")
 
@@ -254,7 +256,7 @@ def test_averaging_recommendation_rests_on_at_least_20_batches_and_names_them(tm
         "status": "completed", "steps": n, "fluid_nodes": 1000, "simulated_seconds": n * dt, "spinup_s": 0.0,
         "threads": 1, "scene": {"numerics": {"dx_mm": 1.0, "dt_s": dt}}, "particles": {"count": 3, "links": 50}}))
     cfg = {"study": {}, "fidelities": {"paper": {"dx_mm": 1.0}}}
-    rows = pd.DataFrame(study.averaging_rows(cfg, "paper", tmp_path))
+    rows = pd.DataFrame(study_errors.averaging_rows(cfg, "paper", tmp_path))
     ok = rows[rows["status"] == "completed"]
     assert len(ok) and (ok["n_batches"] >= 20).all() and (ok["averaging_s"] >= 9.0).all()
     short = rows[rows["status"] == "insufficient"]

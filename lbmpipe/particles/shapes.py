@@ -120,6 +120,27 @@ def volume(kind: int, h) -> float:
     return 8.0 * h[0] * h[1] * h[2]
 
 
+def surface_area(kind: int, h) -> float:
+    """Surface area of the shape with half-extents ``h`` (the unit of ``h`` squared)."""
+    kind = _check_kind(kind)
+    h = np.asarray(h, dtype=np.float64)
+    if kind == SPHERE:
+        r = h[0]
+        return 4 * math.pi * r * r
+    if kind == CYLINDER:
+        r, length = h[0], 2.0 * h[2]
+        return 2 * math.pi * r * r + 2 * math.pi * r * length
+    if h[0] == h[1] == h[2]:
+        return 6 * (2.0 * h[0]) ** 2
+    return 8.0 * (h[0] * h[1] + h[1] * h[2] + h[0] * h[2])
+
+
+def scene_shape(shape: str, diameter_mm=None, length_mm=None, edge_mm=None) -> tuple[int, np.ndarray]:
+    """``(kind, h)`` in mm of a particle as a scene gives it (``shape`` and its full sizes in mm;
+    the sizes a shape does not use may be None)."""
+    return make_shape({"shape": shape, "diameter": diameter_mm, "length": length_mm, "edge": edge_mm})
+
+
 def principal_inertia(kind: int, h, density: float) -> np.ndarray:
     """Principal moments of inertia (3,) about the body axes through the centroid, for a
     uniform ``density``: sphere ``2/5 m r^2``; cylinder ``I_zz = m r^2/2``,

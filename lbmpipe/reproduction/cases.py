@@ -17,9 +17,18 @@ import json
 import os
 from pathlib import Path
 
+import jsonschema
+import numba
+import pandas as pd
 import yaml
 
-from ..scene import Scene, SceneError
+from ..cost import predict
+from ..particles.packing import count_for_concentration
+from ..particles.placement import PACKING_COLUMNS, PARQUET_COLUMNS, STATIC_COLUMNS, packed_group, write_packing
+from ..particles.shapes import make_shape
+from ..scene import Scene, SceneError, load_scene
+from ..solver import run_scene
+from ..units import derive
 from .pipe import DT_PER_MM_S, FLOWS, PIPE, pipe_scene, time_step
 
 
@@ -153,8 +162,6 @@ def pack_case(config: dict, pid: str, out_csv: Path, out_json: Path) -> dict:
     An unreachable target is a result, not a failure: the record says ``unpackable`` with the
     highest concentration reached, the CSV holds only its header, and the cases that use it are
     reported as not packable instead of stopping the pipeline."""
-    from ..particles.placement import PACKING_COLUMNS, packed_group, write_packing
-
     name, case = packing_case(config, pid)
     fid_name = next(iter(config["fidelities"]))
     data = case_scene(name, case, fid_name, config["fidelities"][fid_name])
@@ -165,8 +172,6 @@ def pack_case(config: dict, pid: str, out_csv: Path, out_json: Path) -> dict:
     try:
         x, q, info = packed_group(group, scene)
     except SceneError as exc:
-        from ..particles.packing import count_for_concentration
-        from ..particles.shapes import make_shape
 
         size = {k.removesuffix("_mm"): getattr(group, k) for k in ("diameter_mm", "length_mm", "edge_mm")
                 if getattr(group, k) is not None}
@@ -187,9 +192,6 @@ def write_unpackable(case_dir: Path, case_name: str, packing_info: dict) -> None
     """Outputs of a case whose packing could not be made: a summary with status ``unpackable``
     (target, highest concentration reached, message) and empty tables, so that statistics and
     figures list the case as not packable."""
-    import pandas as pd
-
-    from ..particles.placement import PARQUET_COLUMNS, STATIC_COLUMNS
 
     case_dir = Path(case_dir)
     case_dir.mkdir(parents=True, exist_ok=True)
@@ -210,11 +212,10 @@ def write_unpackable(case_dir: Path, case_name: str, packing_info: dict) -> None
 def estimate_minutes(config: dict, fidelity_name: str, case_name: str, root: Path = Path(".")) -> int:
     """Wall-time estimate of one case in whole minutes, for the cluster profile's ``runtime``
     resource (its time limit) and the jobs' priorities: the wall-time model of the production runs
-    (``lbmpipe.reproduction.runcost``, the first of ``WALL_MODELS`` under ``root``) at a core of the
-    case's own, times ``TIME_LIMIT_MARGIN``; never less than the node-count estimate
+    (``lbmpipe.cost.predict`` with the coefficients of the first of ``WALL_MODELS`` under ``root``,
+    fitted by ``lbmpipe.reproduction.runcost``) at a core of the case's own, times
+    ``TIME_LIMIT_MARGIN``; never less than the node-count estimate
     (``lbmpipe.cost``, with a factor for particle work), which is all there is before any run."""
-    from ..units import derive
-
     fid = config["fidelities"][fidelity_name]
     case_name, case = run_case(config, case_name)
     data = case_scene(case_name, case, fidelity_name, fid)
@@ -226,10 +227,8 @@ def estimate_minutes(config: dict, fidelity_name: str, case_name: str, root: Pat
     minutes = max(1, int(2 * factor * params.estimated_seconds / 60.0) + 1)
     model = wall_model(fidelity_name, root)
     if model is not None:
-        from .runcost import predict_scene
-
         scene = Scene.model_validate(data)
-        seconds = predict_scene(model, scene, derive(scene), 1.0)
+        seconds = predict(scene, derive(scene), model, 1.0)
         minutes = max(minutes, int(TIME_LIMIT_MARGIN * seconds / 60.0) + 1)
     return minutes
 
@@ -280,20 +279,14 @@ def simulate_case(scene_path: Path, packing_json: Path | None, out_dir: Path, th
                   checkpoint: Path | None = None) -> dict:
     """Run one case of the pipeline: the scene's solver run, or, when its packing could not be
     made, the ``unpackable`` record (``write_unpackable``). Returns the summary."""
-    from ..scene import load_scene
-    from ..units import derive
-
     out_dir = Path(out_dir)
     if packing_json is not None:
         info = json.loads(Path(packing_json).read_text())
         if info.get("status") != "packed":
             write_unpackable(out_dir, out_dir.name, info)
             return json.loads((out_dir / "summary.json").read_text())
-    import numba
 
     numba.set_num_threads(max(1, min(int(threads), numba.config.NUMBA_NUM_THREADS)))
-    from ..solver import run_scene
-
     scene = load_scene(scene_path)
     kwargs = {"checkpoint": checkpoint} if checkpoint is not None else {}
     summary = run_scene(scene, derive(scene), out_dir, progress=False, **kwargs)
@@ -311,9 +304,6 @@ def config_problems(config: dict, schema_path: str | Path) -> list[str]:
     """Problems of a pipeline config, each one line ``config error in <key>: ... Fix: ...``:
     the JSON schema (``schema_path``), the selected fidelity, and every case's scene at every
     fidelity level (validated as ``lbmpipe check`` would, before a job starts). Empty if none."""
-    import jsonschema
-
-    from ..units import derive
 
     if not isinstance(config, dict):
         return [f"config error in the config file: it must hold a mapping, got {type(config).__name__}. "

@@ -639,6 +639,12 @@ CLAIMS = {1: claim1, 2: claim2, 3: claim3, 4: claim4, 5: claim5, 6: claim6, 7: c
           10: claim10, 11: claim11, 12: claim12, 13: claim13, 14: claim14}
 
 
+#: the columns a level's ``claims.csv`` takes from the comparison of methods (``methods.claim_rows``
+#: names them on the left, ``write_claims`` on the right)
+LEVEL_CLAIM_COLUMNS = {"verdict_paper_seed1": "verdict_paper_method_seed1",
+                       "verdict_accurate_seed1": "verdict_accurate_method_seed1", "same": "same_under_both_methods"}
+
+
 def evaluate_claims(fid_dir: Path, config_cases: dict) -> pd.DataFrame:
     """The 14 claims of one level: ``claim, statement, statistic, values, verdict, reason``."""
     inp = Inputs(fid_dir, config_cases)
@@ -663,8 +669,6 @@ def write_claims(fid_dir: Path, config_cases: dict, method_claims: Path | None =
     path.parent.mkdir(parents=True, exist_ok=True)
     claims = evaluate_claims(fid_dir, config_cases)
     if method_claims is not None:
-        from .methods import LEVEL_CLAIM_COLUMNS
-
         m = pd.read_csv(method_claims).set_index("claim")
         for src, dst in LEVEL_CLAIM_COLUMNS.items():
             claims[dst] = claims["claim"].map(m[src]) if src in m else None

@@ -27,6 +27,7 @@ import pandas as pd
 from scipy import stats as _st
 
 from .cases import level_cases
+from .comparison_figures import convergence_accuracy_cost
 from .methods import completed_record, stats_values
 
 ROW_COLUMNS = ["case", "observable", "level", "dx_mm", "value", "ci95", "n_seeds", "loop_s_per_sim_s", "flags"]
@@ -174,8 +175,6 @@ def write(config: dict, base: str, root: Path, out_dir: Path) -> dict:
     order = order_rows(vals) if len(vals) else pd.DataFrame(columns=ORDER_COLUMNS)
     vals.to_csv(out_dir / "values.csv", index=False, float_format="%.6g")
     order.to_csv(out_dir / "order.csv", index=False, float_format="%.4g")
-    from .figures import convergence_accuracy_cost
-
     convergence_accuracy_cost(vals, out_dir / "accuracy_cost",
                               title=f"The paper's observables against their cost as dx is refined (level {base})")
     lvls = levels(config, base)

@@ -21,16 +21,11 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-import matplotlib
+import numpy as np
+import pandas as pd
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-import pandas as pd  # noqa: E402
-
-#: The style of every figure of the package (package data beside this module).
-STYLE = Path(__file__).with_name("lbmpipe.mplstyle")
-plt.style.use(STYLE)
+from .statistics import isotropic_bin_fractions
+from .plotting import STYLE, plt, save  # noqa: F401  (STYLE: the style every figure is drawn in)
 
 AXES = ("x", "y", "z")
 AXIS_LABELS = (r"$|\Omega_x|$", r"$|\Omega_y|$", r"$|\Omega_z|$")
@@ -86,20 +81,6 @@ FIGURE_CAPTIONS = {
 }
 
 
-def save(fig, stem: Path) -> list[Path]:
-    """Write ``stem``.pdf and ``stem``.png (``stem`` without extension; dots in it are kept)."""
-    stem = Path(stem)
-    stem.parent.mkdir(parents=True, exist_ok=True)
-    out = []
-    for ext in ("pdf", "png"):
-        path = stem.parent / f"{stem.name}.{ext}"  # not with_suffix: "re9.4" is no suffix
-        # no creation date in the PDF: a figure rebuilt from the same results is the same file
-        fig.savefig(path, dpi=150, bbox_inches="tight", **({"metadata": {"CreationDate": None}} if ext == "pdf" else {}))
-        out.append(path)
-    plt.close(fig)
-    return out
-
-
 # ----------------------------------------------------------------------------------------------
 # helpers
 
@@ -133,7 +114,8 @@ def _select(table: pd.DataFrame, shape: str, size_label: str, concentration: flo
     return table[m]
 
 
-def _status_text(status) -> str:
+def status_text(status) -> str:
+    """What a figure writes at the place of a case without data, from its run status."""
     s = str(status) if status is not None and status == status else "not run"
     return {"unpackable": "not packable", "not run": "not run", "completed": "no samples"}.get(s, s)
 
@@ -254,7 +236,7 @@ def _omega_of(table: pd.DataFrame, crit: dict | None):
     v = np.array([float(r[f"omega_{a}"]) for a in AXES])
     e = np.array([float(r[f"ci_{a}"]) for a in AXES])
     if r.get("status") != "completed" or not np.all(np.isfinite(v)):
-        return nan3, nan3, _status_text(r.get("status"))
+        return nan3, nan3, status_text(r.get("status"))
     return v, e, None
 
 
@@ -362,8 +344,6 @@ def shape_size_bars(table, reynolds: float, stem: Path, title: str = "", concent
 def _reference(ax, kind: str, edges: np.ndarray, x: np.ndarray, half: float) -> float:
     """Draw, as black dashes over each bin at positions ``x``, the fraction a uniformly random
     orientation puts in the bins ``edges`` of ``kind``; return the largest."""
-    from .statistics import isotropic_bin_fractions
-
     ref = isotropic_bin_fractions(kind, edges)
     label = ("isotropic: uniform, 1/{} per bin".format(len(ref)) if np.allclose(ref, ref[0])
              else "isotropic (random orientation)")
@@ -406,7 +386,7 @@ def _hist_panel(ax, table: pd.DataFrame, kind: str, series: list[tuple[str, dict
             data.append((label, rows["fraction"].to_numpy(float), rows["ci95"].to_numpy(float),
                          case_flags(rows.iloc[0])))
         else:
-            why = "not run" if rows.empty else _status_text(status)
+            why = "not run" if rows.empty else status_text(status)
             data.append((label, None, why, []))
             marks.append(f"{label}: {why}")
     if edges is None:  # nothing at all: lay out nominal bins so the panel still reads
@@ -472,7 +452,7 @@ def _case_hist(ax, table: pd.DataFrame, kind: str, crit: dict, hi: float, color:
                label="this case (95 % CI)")
         top = float(np.nanmax(frac + np.where(np.isfinite(ci), ci, 0.0)))
     else:
-        ax.text(0.5, 0.6, "not run" if rows.empty else _status_text(status), transform=ax.transAxes,
+        ax.text(0.5, 0.6, "not run" if rows.empty else status_text(status), transform=ax.transAxes,
                 ha="center", va="center", fontsize=9, color="0.3", style="italic")
     top = max(top, _reference(ax, kind, edges, x, 0.45))
     ax.set_xticks(x, _bin_labels(edges))
@@ -536,7 +516,7 @@ def _profile_state(path) -> tuple[pd.DataFrame | None, str]:
                 status = json.loads(summ.read_text()).get("status")
             except ValueError:
                 pass
-        return None, _status_text(status) if status else "no data"
+        return None, status_text(status) if status else "no data"
     return df, ""
 
 
@@ -575,188 +555,6 @@ def velocity_profiles(profiles: dict[str, Path], stem: Path, title: str = "", pa
         ax.legend(fontsize=7, frameon=False)
     return save(fig, stem)
 
-
-# ----------------------------------------------------------------------------------------------
-# snapshots (Fig. 3-like)
-
-def _cylinder_faces(d: float, length: float, n: int = 16) -> list[np.ndarray]:
-    """Body-frame polygons of a cylinder (axis = body z): n side quads and two n-gon caps."""
-    th = np.linspace(0.0, 2 * np.pi, n + 1)
-    c, s = 0.5 * d * np.cos(th), 0.5 * d * np.sin(th)
-    h = 0.5 * length
-    quads = np.stack([np.stack([c[:-1], s[:-1], np.full(n, -h)], -1), np.stack([c[1:], s[1:], np.full(n, -h)], -1),
-                      np.stack([c[1:], s[1:], np.full(n, h)], -1), np.stack([c[:-1], s[:-1], np.full(n, h)], -1)], 1)
-    caps = np.stack([np.stack([c[:-1], s[:-1], np.full(n, z)], -1) for z in (-h, h)])
-    return [quads, caps]  # (n, 4, 3) and (2, n, 3)
-
-
-def _cube_faces(edge: float) -> list[np.ndarray]:
-    a = 0.5 * edge
-    faces = []
-    for ax in range(3):
-        for sgn in (-1.0, 1.0):
-            u, v = [(1, 2), (2, 0), (0, 1)][ax]
-            sq = np.zeros((4, 3))
-            sq[:, ax] = sgn * a
-            sq[:, u] = np.array([-a, a, a, -a])
-            sq[:, v] = np.array([-a, -a, a, a])
-            faces.append(sq)
-    return [np.array(faces)]  # (6, 4, 3)
-
-
-def snapshot(case_dir: Path, stem: Path, title: str = "") -> Path:
-    """Fig. 3-like view: the particles of the last sample in 3-D inside the pipe outline, each
-    drawn as a polygon mesh in its position and orientation, coloured by its angle to the pipe
-    axis. Writes ``stem``.png only and returns it. A case without particles to draw (not run,
-    not packable) gets a PNG saying so."""
-    stem = Path(stem)
-    fig = snapshot_figure(case_dir, title)
-    out = stem.parent / f"{stem.name}.png"
-    out.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(out, dpi=150, bbox_inches="tight")
-    plt.close(fig)
-    return out
-
-
-def snapshot_figure(case_dir: Path, title: str = ""):
-    """The figure of :func:`snapshot`, not saved: the 3-D axes first, the colour bar's (if any) second."""
-    from mpl_toolkits.mplot3d.art3d import Poly3DCollection
-
-    from . import statistics as st
-
-    case_dir = Path(case_dir)
-    # The tall pipe fills a narrow axes; the colour bar gets its own axes right beside it (a
-    # colorbar() of the 3-D axes sits beyond the axes' square box and leaves an empty band).
-    fig = plt.figure(figsize=(4.0, 6.4))
-    ax = fig.add_axes((0.0, 0.02, 0.78, 0.9), projection="3d")
-    R, L = 25.0, 100.0
-    th = np.linspace(0, 2 * np.pi, 97)
-    for z in (0.0, L):
-        ax.plot(R * np.cos(th), R * np.sin(th), np.full_like(th, z), color="0.5", lw=0.7)
-    for a in np.linspace(0, 2 * np.pi, 9)[:-1]:
-        ax.plot([R * np.cos(a)] * 2, [R * np.sin(a)] * 2, [0.0, L], color="0.75", lw=0.5)
-    pq, static = case_dir / "particles.parquet", case_dir / "particles_static.csv"
-    summary = {}
-    if (case_dir / "summary.json").exists():
-        try:
-            summary = json.loads((case_dir / "summary.json").read_text())
-        except ValueError:
-            pass
-    frame = case_dir / st.LAST_FRAME
-    try:
-        df = pd.read_csv(frame) if frame.exists() else pd.read_parquet(pq) if pq.exists() else pd.DataFrame()
-    except pd.errors.EmptyDataError:
-        df = pd.DataFrame()
-    note = ""
-    colour_bar = None
-    if df.empty or not static.exists():
-        note = _status_text(summary.get("status", "not run")) if summary.get("status") != "completed" else "no samples"
-    else:
-        t_last = df["t_s"].max()
-        last = df[df["t_s"] == t_last].merge(pd.read_csv(static), on="id", how="left")
-        q = last[["qw", "qx", "qy", "qz"]].to_numpy()
-        A = st.rotation_matrices(q)
-        centre = last[["x_mm", "y_mm", "z_mm"]].to_numpy()
-        polys, values = [], []
-        is_cyl = (last["shape"] == "cylinder").to_numpy()
-        angle = np.where(is_cyl, st.cylinder_axis_angle(q), st.cube_axis_angle(q))
-        # one template per distinct (shape, size): particles of a case share it, so the mesh of all
-        # particles is one broadcast product per template
-        groups = last.reset_index(drop=True).groupby(["shape", "diameter_mm", "length_mm", "edge_mm"],
-                                                      dropna=False).indices
-        for idx in groups.values():
-            sel = np.zeros(len(last), bool)
-            sel[idx] = True
-            r0 = last.iloc[idx[0]]
-            faces = (_cylinder_faces(r0.diameter_mm, r0.length_mm) if r0["shape"] == "cylinder"
-                     else _cube_faces(r0.edge_mm))
-            for f in faces:  # f (F, k, 3) body frame -> (N, F, k, 3) lab frame
-                lab = np.einsum("nij,fkj->nfki", A[sel], f) + centre[sel][:, None, None, :]
-                polys += list(lab.reshape(-1, f.shape[1], 3))
-                values += list(np.repeat(angle[sel], f.shape[0]))
-        cmap = plt.get_cmap("viridis")
-        vmax = 90.0 if is_cyl.all() else (CUBE_MAX_AXIS_ANGLE_DEG if not is_cyl.any() else 90.0)
-        colors = cmap(np.asarray(values) / vmax)
-        coll = Poly3DCollection(polys, facecolors=colors, edgecolors=(0, 0, 0, 0.15), linewidths=0.2)
-        try:  # polygons of unequal length are padded with masked values that break autoscaling
-            ax.add_collection3d(coll, autolim=False)
-        except TypeError:  # matplotlib < 3.10
-            ax.add_collection3d(coll)
-        colour_bar = (plt.cm.ScalarMappable(cmap=cmap, norm=plt.Normalize(0, vmax)),
-                      "cylinder axis to pipe axis (deg)" if is_cyl.all() else "nearest cube axis to pipe axis (deg)")
-        title = (title + "\n" if title else "") + f"t = {t_last:.2f} s, {len(last)} particles"
-    if note:
-        ax.text(0.0, 0.0, 0.5 * L, note, ha="center", fontsize=12, color="0.3", style="italic")
-    ax.set_xlim(-R, R)
-    ax.set_ylim(-R, R)
-    ax.set_zlim(0, L)
-    ax.set_box_aspect((2 * R, 2 * R, L))
-    ax.set_xlabel("x (mm)", fontsize=8)
-    ax.set_ylabel("y (mm)", fontsize=8)
-    ax.set_zlabel("z (mm)", fontsize=8)
-    # few ticks: the foreshortened x and y axes have room for three labels each without overlap
-    ax.set_xticks([-20, 0, 20])
-    ax.set_yticks([-20, 0, 20])
-    ax.set_zticks([0, 20, 40, 60, 80, 100])
-    ax.tick_params(labelsize=6, pad=0)
-    ax.view_init(elev=12, azim=-70)
-    if title:
-        ax.set_title(title, fontsize=8)
-    if colour_bar is not None:
-        # right beside the z axis's label, known after a draw (the 3-D axes' own box is wider than the
-        # pipe it draws)
-        fig.canvas.draw()
-        drawn = ax.zaxis.get_tightbbox(fig.canvas.get_renderer()).transformed(fig.transFigure.inverted())
-        cb = fig.colorbar(colour_bar[0], cax=fig.add_axes((min(drawn.x1 + 0.04, 0.82), 0.3, 0.035, 0.36)))
-        cb.ax.tick_params(labelsize=7)
-        cb.set_label(colour_bar[1], fontsize=8)
-    return fig
-
-
-def snapshots(fid_dir: Path, cases: dict, fidelity: str | None = None, run: str = "") -> list[Path]:
-    """``fid_dir/figures/fig3_<case>.png`` for every particle case of the config dict ``cases``,
-    drawn from ``cases/<case>/<run>`` (``run``: ``seed1`` in a level with several packings)."""
-    from . import statistics as st
-
-    fid_dir = Path(fid_dir)
-    fidelity = fidelity or fid_dir.name
-    out = []
-    for case, cfg in cases.items():
-        if not (cfg or {}).get("particles"):
-            continue
-        label = f"{case}{', ' + run.replace('seed', 'seed ') if run else ''}, fidelity {fidelity}"
-        case_dir, png = fid_dir / "cases" / case / run, fid_dir / "figures" / f"fig3_{case}.png"
-        if png.exists() and not any((case_dir / f).exists() for f in (st.LAST_FRAME, "particles.parquet")):
-            out.append(png)  # drawn from a trajectory no longer here (not committed): kept, not blanked
-            continue
-        out.append(snapshot(case_dir, png.with_suffix(""), title=label))
-    return out
-
-
-def snapshot_gallery(fid_dir: Path, cases, out_png: Path | None = None, ncols: int = 6) -> Path | None:
-    """One image tiling the snapshots ``fid_dir/figures/fig3_<case>.png`` of ``cases`` (names, in
-    order; those without a PNG are left out), each titled with its case name, into ``out_png``
-    (default ``fid_dir/figures/fig3_gallery.png``). Returns the path, or None when no snapshot
-    exists (nothing is written)."""
-    fig_dir = Path(fid_dir) / "figures"
-    found = [(c, fig_dir / f"fig3_{c}.png") for c in cases]
-    found = [(c, p) for c, p in found if p.is_file()]
-    if not found:
-        return None
-    out_png = Path(out_png) if out_png is not None else fig_dir / "fig3_gallery.png"
-    ncols = max(1, min(ncols, len(found)))
-    nrows = -(-len(found) // ncols)
-    fig, axs = plt.subplots(nrows, ncols, figsize=(2.2 * ncols, 2.35 * nrows), squeeze=False)
-    for ax in axs.flat:
-        ax.axis("off")
-    for ax, (case, png) in zip(axs.flat, found):
-        ax.imshow(plt.imread(png))
-        ax.set_title(case, fontsize=7)
-    fig.tight_layout(pad=0.3)
-    out_png.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(out_png, dpi=120)
-    plt.close(fig)
-    return out_png
 
 
 # ----------------------------------------------------------------------------------------------
@@ -811,106 +609,3 @@ def make_figures(fid_dir: Path, fidelity: str, cases: dict | None = None) -> lis
     out += velocity_profiles(profiles, figs / "fig10_profiles", title=f"Fig. 10: axial velocity profiles ({lvl})",
                              parabola="first")
     return out
-
-
-# ----------------------------------------------------------------------------------------------
-# the method comparison (lbmpipe.reproduction.methods)
-
-#: colour of a claim's cell by whether its verdict is the same under both methods
-_SAME_COLOURS = {"yes": "#cde8c8", "no": "#f4b6b0", "not compared": "#eeeeee"}
-
-
-def method_comparison(runs: pd.DataFrame, claims: pd.DataFrame, stem: Path, title: str = "") -> list[Path]:
-    """What the method changes, as one figure: left, each paired run's relative difference of mean
-    |Omega| about x, y, z (accurate / paper - 1) with its 95 % interval (filled: the difference
-    exceeds the two runs' intervals combined); right, each claim's verdict under the paper's method
-    and the accurate one from packing seed 1, the cell red where they differ and grey where either
-    lacks inputs. ``runs`` and ``claims``: ``method/runs.csv`` and ``method/claims.csv``."""
-    om = runs[runs["observable"].astype(str).str.startswith("mean_abs_omega")] if len(runs) else runs
-    names = sorted(om["run"].unique()) if len(om) else []
-    fig, (ax, axc) = plt.subplots(1, 2, figsize=(12, max(3.5, 0.45 * max(len(names), len(claims)) + 1.5)),
-                                  gridspec_kw={"width_ratios": [1.2, 1]})
-    for k, (axis, colour) in enumerate(zip("xyz", ("C0", "C1", "C2"))):
-        sub = om[om["observable"] == f"mean_abs_omega_{axis}"] if len(om) else om
-        for i, (_, r) in enumerate(sub.iterrows()):
-            y = names.index(r["run"]) + (k - 1) * 0.22
-            ci = float(r["rel_diff_ci95"]) if pd.notna(r["rel_diff_ci95"]) else 0.0
-            filled = str(r["significant"]) == "True"
-            ax.errorbar(100 * float(r["rel_diff"]), y, xerr=100 * ci, fmt="o", color=colour,
-                        mfc=colour if filled else "white", label=f"|Omega_{axis}|" if i == 0 else None)
-    ax.axvline(0.0, color="k", lw=0.8)
-    ax.set_yticks(range(len(names)), names)
-    ax.invert_yaxis()
-    ax.set_xlabel("mean |Omega|: accurate / paper method - 1 (%), 95 % interval")
-    if names:
-        ax.legend(loc="best", fontsize=8)
-    else:
-        ax.text(0.5, 0.5, "no paired run done yet", ha="center", va="center", transform=ax.transAxes)
-    axc.axis("off")
-    if len(claims):
-        cells = [[str(r["claim"]), str(r["verdict_paper_seed1"]), str(r["verdict_accurate_seed1"])]
-                 for _, r in claims.iterrows()]
-        colours = [["white"] + [_SAME_COLOURS.get(str(r["same"]), "white")] * 2 for _, r in claims.iterrows()]
-        tab = axc.table(cellText=cells, cellColours=colours, colLabels=["claim", "paper method", "accurate method"],
-                        loc="upper center", cellLoc="center")
-        tab.auto_set_font_size(False)
-        tab.set_fontsize(8)
-        axc.set_title("verdicts from packing seed 1 (red: they differ; grey: not compared)", fontsize=9)
-    fig.suptitle(title)
-    return save(fig, stem)
-
-
-#: convergence observables drawn, one panel each: (observables, y label)
-_CONVERGENCE_PANELS = (
-    (("profile_distance",), "profile's distance from Poiseuille"),
-    (("mean_abs_omega_x", "mean_abs_omega_y", "mean_abs_omega_z"), "mean |Omega| (rad/s)"),
-    (("mean_angle_deg",), "mean orientation angle (deg)"),
-)
-
-
-def convergence_accuracy_cost(values: pd.DataFrame, stem: Path, title: str = "") -> list[Path]:
-    """The paper's observables against what they cost as the lattice is refined: per case (rows)
-    the profile's distance from Poiseuille, mean |Omega| about x, y, z and the mean orientation
-    angle (columns) against the measured time-loop seconds per simulated second, one point per
-    dx (labelled) with its 95 % interval; a hollow marker for a flagged value (its flags in
-    ``values.csv``). ``values``: ``convergence/values.csv``."""
-    cases = sorted(values["case"].unique()) if len(values) else []
-    fig, axes = plt.subplots(max(len(cases), 1), len(_CONVERGENCE_PANELS), squeeze=False,
-                             figsize=(4.2 * len(_CONVERGENCE_PANELS), 3.0 * max(len(cases), 1)))
-    for i, case in enumerate(cases):
-        sub = values[values["case"] == case]
-        for j, (observables, label) in enumerate(_CONVERGENCE_PANELS):
-            ax = axes[i][j]
-            drawn = False
-            for k, obs in enumerate(observables):
-                g = sub[(sub["observable"] == obs) & np.isfinite(sub["value"].astype(float))
-                        & np.isfinite(sub["loop_s_per_sim_s"].astype(float))].sort_values("dx_mm")
-                if not len(g):
-                    continue
-                colour = f"C{k}"
-                x, y = g["loop_s_per_sim_s"].to_numpy(float), g["value"].to_numpy(float)
-                ci = np.nan_to_num(g["ci95"].to_numpy(float))
-                ax.plot(x, y, "-", color=colour, lw=0.8)
-                for xi, yi, ci_i, fl, dx in zip(x, y, ci, g["flags"].fillna("").astype(str), g["dx_mm"]):
-                    ax.errorbar(xi, yi, yerr=ci_i, fmt="o", color=colour, mfc="white" if fl else colour,
-                                label=(obs.replace("mean_abs_omega_", "|Omega_") + "|") if len(observables) > 1
-                                and dx == g["dx_mm"].iloc[0] else None)
-                    ax.annotate(f"{dx:g} mm", (xi, yi), textcoords="offset points", xytext=(4, 4), fontsize=7)
-                drawn = True
-            if not drawn:
-                ax.axis("off")
-                continue
-            ax.set_xscale("log")
-            ax.set_xlabel("time-loop s per simulated s")
-            ax.set_ylabel(label)
-            ax.set_title(case, fontsize=9)
-            if len(observables) > 1:
-                ax.legend(fontsize=7, loc="best")
-    if not cases:
-        axes[0][0].text(0.5, 0.5, "no case run at a second spacing yet", ha="center", va="center",
-                        transform=axes[0][0].transAxes)
-        for ax in axes[0]:
-            ax.axis("off")
-    fig.suptitle(title + "\n(hollow: a flagged value; bars: 95 % intervals, seeds combined)", fontsize=10)
-    fig.tight_layout()
-    return save(fig, stem)

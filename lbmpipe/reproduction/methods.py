@@ -12,30 +12,32 @@ Observables: mean |Omega| about x, y, z (Figs. 4-7), the mean orientation angle 
 the flow profile's relative L2 distance from Poiseuille (Fig. 10; for the particle-free flows this is
 the wall treatment's own error). Per claim: the verdicts side by side, each evaluated from packing
 seed 1 of the accurate level's cases under both methods; the level's ``claims.csv`` carries them
-beside its own verdict from all its packings and cases (``LEVEL_CLAIM_COLUMNS``).
+beside its own verdict from all its packings and cases (``claims.LEVEL_CLAIM_COLUMNS``).
 """
 
 from __future__ import annotations
 
 import json
 import math
+import shutil
+import tempfile
 from pathlib import Path
 
 import pandas as pd
 
-from .cases import level_runs
+from .cases import level_cases, level_runs
+from .claims import evaluate_claims
+from .comparison_figures import method_comparison
 from .health import _num as _f
 from .health import read_json as _read
 from .health import refresh_health, thresholds
+from .statistics import aggregate
 
 #: the orientation angle of each shape that Figs. 8-9 show (stats.json ``orientation``)
 ANGLE_KEY = {"cylinder": "cyl_axis_angle", "cube": "cube_projected_angle"}
 RUN_COLUMNS = ["run", "observable", "paper", "paper_ci95", "accurate", "accurate_ci95", "rel_diff", "rel_diff_ci95",
                "significant", "paper_flags", "accurate_flags"]
 CLAIM_COLUMNS = ["claim", "statement", "verdict_paper_seed1", "verdict_accurate_seed1", "same", "reason_accurate"]
-#: the columns the level's ``claims.csv`` takes from the comparison (``claims.write_claims``)
-LEVEL_CLAIM_COLUMNS = {"verdict_paper_seed1": "verdict_paper_method_seed1",
-                       "verdict_accurate_seed1": "verdict_accurate_method_seed1", "same": "same_under_both_methods"}
 
 
 def comparison_level(config: dict, level: str) -> str | None:
@@ -113,11 +115,6 @@ def seed1_claims(config: dict, level: str, cases: list[str], root: Path, work: P
     """The claims of ``level`` evaluated from packing seed 1 of ``cases`` alone (the other cases
     count as not run): the accurate level runs seed 1 of a subset, so its verdicts are set beside
     the paper method's on the same packings and cases, not beside the level's three packings."""
-    import shutil
-
-    from .claims import evaluate_claims
-    from .statistics import aggregate
-
     fid = config["fidelities"][level]
     view = Path(work) / level
     for case in cases:
@@ -181,10 +178,6 @@ def write(config: dict, paper_level: str, root: Path, out_dir: Path) -> dict:
     done)."""
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
-    import tempfile
-
-    from .cases import level_cases
-
     acc = comparison_level(config, paper_level)
     runs = run_rows(config, paper_level, acc, root) if acc else pd.DataFrame(columns=RUN_COLUMNS)
     if acc:
@@ -196,8 +189,6 @@ def write(config: dict, paper_level: str, root: Path, out_dir: Path) -> dict:
         claims = pd.DataFrame(columns=CLAIM_COLUMNS)
     runs.to_csv(out_dir / "runs.csv", index=False, float_format="%.6g")
     claims.to_csv(out_dir / "claims.csv", index=False)
-    from .figures import method_comparison
-
     method_comparison(runs, claims, out_dir / "method_comparison",
                       title=f"What the method changes: level {paper_level} (paper) against {acc or 'no accurate level'}")
     s = {"paper_level": paper_level, "accurate_level": acc,

@@ -1,4 +1,13 @@
-"""Wall-time cost model of a level's production runs, validated on runs it was not fitted to.
+"""The cost model's coefficients, fitted and validated in one place; :func:`lbmpipe.cost.predict`
+evaluates them for a scene (its formula is in :mod:`lbmpipe.cost`).
+
+Two fits, to two sets of runs: :func:`build` fits a level's production runs and validates them on
+runs it was not fitted to (``tables/cost_model.json``, below); :func:`fit_cost_model` fits the
+accuracy-cost study's runs and the case runs present (``study/cost_model.json``, non-negative
+least squares on relative residuals; no share of a core, no ``s_per_step``). :func:`read_benchmark`,
+:func:`run_work` and :func:`links_per_area` read a run's time and work for both.
+
+Wall-time cost model of a level's production runs, validated on runs it was not fitted to.
 
 Every run times each effect of its step (``summary.json`` ``effects``). The model charges each
 group of effects to the work it scales with, so that every coefficient is measured on its own
@@ -55,7 +64,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from .study import D3Q15_LINKS_PER_AREA, links_per_area, read_benchmark, scene_particle_load
+from ..cost import D3Q15_LINKS_PER_AREA, particle_area_volume, predict_work
 
 #: effect-name prefixes of each group of the step (``solver`` names its effects this way)
 GROUPS = {"fluid": ("stream+collide", "wall", "flow-rate"), "particles": ("particles",), "collisions": ("collisions",)}
@@ -111,7 +120,7 @@ def level_rows(level_dir: Path, runs: list[str]) -> pd.DataFrame:
         wall, cpu = bench["s"], bench["cpu_time"]
         row = run_row(run, summary, wall)
         if row is not None:
-            # boundary links per unit particle area: how predict_scene estimates a new scene's links
+            # boundary links per unit particle area: how lbmpipe.cost.predict estimates a new scene's links
             row["links_per_area_lu"] = (links_per_area(summary, path.parent / "particles_static.csv")
                                         if row["links"] > 0 else float("nan"))
             # the share of a core per thread the run got (other runs and jobs on the host take the
@@ -152,15 +161,6 @@ def fit(rows: pd.DataFrame) -> dict:
     return model
 
 
-def predict(model: dict, steps, nodes, links=0.0, particles=0.0, threads=1, share=1.0):
-    """Wall seconds of runs (scalars or arrays) under ``model``, each getting ``share`` of a
-    core per thread (1: a core of its own)."""
-    t = np.maximum(np.asarray(threads, dtype=float), 1.0)
-    per_step = (model["s_per_node_update"] * np.asarray(nodes, float) + model["s_per_link_update"] * np.asarray(links, float)
-                + model["s_per_particle_step"] * np.asarray(particles, float) + model["s_per_step"])
-    return (model["intercept_s"] + np.asarray(steps, float) * per_step / t) / np.asarray(share, float)
-
-
 def _training(rows: pd.DataFrame, fam: str, host: str) -> tuple[pd.DataFrame, str]:
     """The runs that predict family ``fam``'s runs on processor ``host``: the other families' runs
     of that processor (or of the unrecorded group) if there are any, else every other family's
@@ -192,8 +192,8 @@ def validate(rows: pd.DataFrame) -> pd.DataFrame:
         m = fit(train)
         args = (m, rows.loc[held, "steps"], rows.loc[held, "nodes"], rows.loc[held, "links"], rows.loc[held, "particles"],
                 rows.loc[held, "threads"])
-        out.loc[held, "predicted_s"] = predict(*args, share=share[held])
-        out.loc[held, "predicted_median_share_s"] = predict(*args, share=m["median_cpu_share"])
+        out.loc[held, "predicted_s"] = predict_work(*args, share=share[held])
+        out.loc[held, "predicted_median_share_s"] = predict_work(*args, share=m["median_cpu_share"])
         out.loc[held, "fitted_on"] = len(train)
         out.loc[held, "fitted_host"] = fitted_host
     out["rel_error"] = out["predicted_s"] / rows["wall_s"] - 1.0
@@ -250,23 +250,128 @@ def write(level_dir: Path, runs: list[str], level: str, model_path: Path, table_
     return model
 
 
-def for_host(model: dict, host: str | None) -> tuple[dict, bool]:
-    """The coefficients that predict a run on processor ``host``: its own (``model["hosts"]``)
-    if the model has validated them (runs of two families or more), else the fit to all runs.
-    Returns (model, own)."""
-    own = (model.get("hosts") or {}).get(host) if host else None
-    return ({**model, **own}, True) if own else (model, False)
+def read_benchmark(path: Path) -> dict:
+    """Wall seconds ``s``, ``cpu_time`` and ``max_rss`` (MB) of a Snakemake benchmark file (the
+    mean over its repeats); NaN when the file is missing."""
+    try:
+        df = pd.read_csv(path, sep="\t")
+    except (FileNotFoundError, pd.errors.EmptyDataError):
+        return {"s": float("nan"), "cpu_time": float("nan"), "max_rss": float("nan")}
+    out = {}
+    for k in ("s", "cpu_time", "max_rss"):
+        # snakemake writes "-" where it could not measure
+        out[k] = float(pd.to_numeric(df[k], errors="coerce").mean()) if k in df else float("nan")
+    return out
 
 
-def predict_scene(model: dict, scene, params, share: float = 1.0) -> float:
-    """Predicted wall seconds of a validated ``Scene`` with lattice parameters ``params``, with
-    ``share`` of a core per thread (``model``: a level's model, or one processor's from
-    :func:`for_host`): the particles' links estimated from their surface area
-    (``links_per_area_lu`` of the model), their count as the packer or random placement would
-    make it."""
-    count, area_mm2 = scene_particle_load(scene)
-    lpa = model.get("links_per_area_lu")
-    lpa = float(lpa) if lpa is not None and math.isfinite(float(lpa)) else D3Q15_LINKS_PER_AREA
-    links = lpa * area_mm2 / scene.numerics.dx_mm**2
-    threads = scene.run.threads or 1
-    return float(predict(model, params.n_steps, params.fluid_nodes, links, count, threads, share))
+COST_FEATURES = ("node_updates", "link_updates", "particle_steps")
+
+
+def fit_cost_model(df: pd.DataFrame, target: str = "cpu_s") -> dict:
+    """Fit ``seconds = c0 + (a node_updates + b link_updates + c particle_steps) / threads`` with
+    non-negative coefficients, minimising the relative (not absolute) residuals, so that short
+    and long runs count alike. On ``target = "cpu_s"`` (CPU seconds summed over threads) the work
+    terms are not divided by the threads; the model then predicts wall time as the CPU time
+    spread ideally over the threads. A feature that is zero in every row is left out
+    (coefficient 0, listed under ``not_identified``). Returns the model dict
+    :func:`lbmpipe.cost.predict` evaluates."""
+    from scipy.optimize import nnls
+
+    d = df[np.isfinite(df[target].astype(float)) & (df[target].astype(float) > 0)].copy()
+    for c in COST_FEATURES:
+        d[c] = d[c].astype(float).fillna(0.0) if c in d else 0.0
+    per_thread = target != "cpu_s"
+    thr = d["threads"].astype(float).clip(lower=1) if ("threads" in d and per_thread) else pd.Series(1.0, index=d.index)
+    y = d[target].to_numpy(float)
+    used = [c for c in COST_FEATURES if (d[c] > 0).any()]
+    cols = [np.ones(len(d))] + [(d[c] / thr).to_numpy(float) for c in used]
+    X = np.stack(cols, axis=1)
+    # the formula names what was fitted: CPU seconds of the study's runs are not a wall time (the
+    # production runs' wall-time model is lbmpipe.reproduction.runcost)
+    model = {"formula": f"{target} = intercept_s + (s_per_node_update * node_updates + s_per_link_update * link_updates"
+                        " + s_per_particle_step * particle_steps)" + (" / threads" if per_thread else ""),
+             "target": target, "work_per_thread_in_fit": per_thread, "n_runs": int(len(d)),
+             "intercept_s": 0.0, "s_per_node_update": 0.0, "s_per_link_update": 0.0, "s_per_particle_step": 0.0,
+             "links_per_area_lu": D3Q15_LINKS_PER_AREA,
+             "not_identified": [c for c in COST_FEATURES if c not in used]}
+    if len(d) < X.shape[1]:
+        model["note"] = f"{len(d)} runs for {X.shape[1]} coefficients: not fitted"
+        return model
+    w = 1.0 / y
+    scale = np.abs(X).max(axis=0)
+    scale[scale == 0] = 1.0
+    coef, _ = nnls((X / scale) * w[:, None], y * w)
+    coef = coef / scale
+    names = {"node_updates": "s_per_node_update", "link_updates": "s_per_link_update",
+             "particle_steps": "s_per_particle_step"}
+    model["intercept_s"] = float(coef[0])
+    for c, v in zip(used, coef[1:]):
+        model[names[c]] = float(v)
+    pred = X @ coef
+    rel = pred / y - 1.0
+    model["rel_rms_error"] = float(np.sqrt(np.mean(rel**2)))
+    model["max_rel_error"] = float(np.max(np.abs(rel)))
+    if model["s_per_node_update"] > 0:
+        model["mlups_equivalent"] = 1e-6 / model["s_per_node_update"]
+    return model
+
+
+def model_predict_work(model: dict, node_updates, link_updates=0.0, particle_steps=0.0, threads=1,
+                       wall: bool = True):
+    """The cost model on work counts (arrays or scalars): wall seconds, or with ``wall=False``
+    the quantity the model was fitted on (CPU seconds for a ``cpu_s`` model)."""
+    per_thread = wall or model.get("work_per_thread_in_fit", True)
+    # the work is already summed over the steps: one step of it, through the one formula
+    return predict_work(model, 1.0, node_updates, link_updates, particle_steps, threads if per_thread else 1.0)
+
+
+def links_per_area(summary: dict, static_csv: Path | None = None, scene_data: dict | None = None) -> float:
+    """Measured links per unit particle area (lattice units) of one run: ``particles.links`` of
+    the summary over the particles' area from ``particles_static.csv`` (or the scene's bodies)."""
+    links = float((summary.get("particles") or {}).get("links", 0) or 0)
+    dx = float(((summary.get("scene") or {}).get("numerics") or {}).get("dx_mm", np.nan))
+    area = 0.0
+    if static_csv is not None and Path(static_csv).exists():
+        st = pd.read_csv(static_csv)
+        for _, r in st.iterrows():
+            kw = {k: (None if pd.isna(r.get(k)) else float(r[k])) for k in ("diameter_mm", "length_mm", "edge_mm")}
+            area += particle_area_volume(r["shape"], **kw)[0]
+    elif scene_data is not None:
+        for b in (scene_data.get("particles") or {}).get("bodies", []):
+            area += particle_area_volume(b["shape"], b.get("diameter_mm"), b.get("length_mm"), b.get("edge_mm"))[0]
+    if not (links > 0 and area > 0 and np.isfinite(dx)):
+        return float("nan")
+    return links / (area / dx**2)
+
+
+def case_cost_rows(config: dict, fidelity: str, root: Path = Path("results")) -> list[dict]:
+    """Work and wall time of the pipeline's case runs at ``fidelity`` that have a benchmark file
+    and a completed summary (the cases are not inputs of the study: whatever exists is used)."""
+    rows = []
+    bdir = Path(root) / fidelity / "benchmarks"
+    for bench in sorted(bdir.glob("*.simulate.tsv")) if bdir.exists() else []:
+        case = bench.name.removesuffix(".simulate.tsv")
+        summ = Path(root) / fidelity / "cases" / case / "summary.json"
+        if not summ.exists():
+            continue
+        summary = json.loads(summ.read_text())
+        if summary.get("status") != "completed":
+            continue
+        b = read_benchmark(bench)
+        row = {"source": "case", "run": case, **run_work(summary), "wall_s": b["s"], "cpu_s": b["cpu_time"],
+               "links_per_area_lu": links_per_area(summary, Path(root) / fidelity / "cases" / case / "particles_static.csv")}
+        rows.append(row)
+    return rows
+
+
+def run_work(summary: dict) -> dict:
+    steps = int(summary.get("steps", 0) or 0)
+    nodes = int(summary.get("fluid_nodes", 0) or 0)
+    part = summary.get("particles", {}) or {}
+    links = int(part.get("links", 0) or 0)
+    count = int(part.get("count", 0) or 0)
+    return {"steps": steps, "nodes": nodes, "node_updates": float(nodes) * steps, "particles": count,
+            "links": links, "link_updates": float(links) * steps, "particle_steps": float(count) * steps,
+            "threads": int(summary.get("threads", 1) or 1), "solver_s": float(summary.get("wall_seconds", np.nan)),
+            "setup_s": float(summary.get("setup_seconds", np.nan)),
+            "simulated_s": float(summary.get("simulated_seconds", np.nan))}

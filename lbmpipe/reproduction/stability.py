@@ -51,9 +51,16 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import numba
 import numpy as np
 
+from ..fluid import observables as obs
 from ..particles.collision_params import CollisionParams
+from ..particles.contact import contact_pipe
+from ..particles.placement import packed_group, write_packing
+from ..scene import Scene, SceneError
+from ..solver import run_loop, simulation_from_scene
+from ..units import derive
 from .pipe import DENSITY_KG_M3, pipe_scene, time_step
 
 #: stated bounds of the invariants
@@ -87,7 +94,6 @@ class StabilityCase:
     viscosity is chosen for it), ``particles`` (the scene's ``particles`` block, or None),
     ``kind`` ("flow" | "particles" | "long") picks the step count of the fidelity level, ``expect``
     the outcome the CI test asserts ("stable", "unstable", or None: recorded only)."""
-
     name: str
     description: str
     reynolds: float = 9.4
@@ -234,9 +240,6 @@ def _pack_files(data: dict, work_dir: Path) -> dict:
     """Replace a ``packed`` group without a file by a packing file made once per (shape, size,
     concentration, seed) in ``work_dir`` (cases share packings; the density ratio is not part of
     the packing)."""
-    from ..particles.placement import packed_group, write_packing
-    from ..scene import Scene
-
     groups = (data.get("particles") or {}).get("packed") or []
     if not groups or groups[0].get("file"):
         return data
@@ -254,7 +257,6 @@ def _pack_files(data: dict, work_dir: Path) -> dict:
 
 
 def _ke_reference(sim, params) -> float:
-    from ..fluid import observables as obs
 
     g = sim.grid
     x, y, _ = g.positions()
@@ -280,8 +282,6 @@ def _kinetic_energy(sim) -> float:
 def _min_wall_clearance(sim) -> float:
     """Smallest signed gap (lattice units) between a particle and the pipe wall (negative: the
     particle reaches into the wall)."""
-    from ..particles.contact import contact_pipe
-
     ps = sim.particles
     if ps is None or ps.n == 0 or sim.grid.kind != "pipe":
         return float("nan")
@@ -297,11 +297,7 @@ def run_case(case: StabilityCase, dx_mm: float, steps: int, work_dir: Path | Non
              threads: int | None = 1) -> dict:
     """Run one case for ``steps`` steps at ``dx_mm`` with the guard, probing the invariants every
     ``probe_every`` steps; returns the table row (module docstring)."""
-    import numba
 
-    from ..scene import Scene, SceneError
-    from ..solver import run_loop, simulation_from_scene
-    from ..units import derive
 
     if threads:
         numba.set_num_threads(max(1, min(int(threads), numba.config.NUMBA_NUM_THREADS)))
@@ -358,7 +354,6 @@ class _Probe:
     """The suite's reporter (``solver.Reporter``): at every sample a guard check, and the extremes
     of the invariants (fluid speed and density, mass drift, kinetic energy against
     Hagen-Poiseuille's, wall clearance)."""
-
     def __init__(self, sim, params):
         self.mass0 = sim.mass()
         self.rho0 = self.mass0 / max(int(sim.fluid_mask().sum()), 1)

@@ -4,7 +4,7 @@ import json
 import re
 
 from lbmpipe.reproduction import stability as lbm_stability
-from lbmpipe.reproduction import study as lbm_study
+from lbmpipe.reproduction import study_plan as lbm_study
 
 
 def _packing_input(wildcards):

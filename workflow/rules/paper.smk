@@ -94,7 +94,7 @@ rule paper:
     output:
         md="paper/reproduction_{fidelity}.md",
         html="paper/reproduction_{fidelity}.html",
-        gallery="results/{fidelity}/figures/fig3_gallery.png",  # the snapshots tiled (figures.snapshot_gallery)
+        gallery="results/{fidelity}/figures/fig3_gallery.png",  # the snapshots tiled (snapshots.snapshot_gallery)
     log:
         "results/{fidelity}/logs/paper.log",
     script:

@@ -1,6 +1,6 @@
-# Accuracy against cost (lbmpipe.reproduction.study): error against a reference and wall time for each
+# Accuracy against cost (lbmpipe.reproduction.study_plan, study_errors, study): error against a reference and wall time for each
 # accuracy knob (dx, dt, wall, collision, precision, averaging time). Settings per fidelity from
-# config["study"][<fidelity>] over the defaults in lbmpipe/reproduction/study.py. Every study run has its own
+# config["study"][<fidelity>] over the defaults in lbmpipe/reproduction/study_plan.py. Every study run has its own
 # scene, Snakemake benchmark and log; `collect` reads them with the case runs present (for the
 # cost model and the observable's convergence across levels), `report` writes the figures, the
 # Markdown table and the computed recommendation.

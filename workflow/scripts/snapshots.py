@@ -1,7 +1,7 @@
 import sys
 from pathlib import Path
 
-from lbmpipe.reproduction.figures import snapshots
+from lbmpipe.reproduction.snapshots import snapshots
 
 sys.stderr = open(snakemake.log[0], "w")
 cases = {c: cfg for c, cfg in snakemake.config["cases"].items() if cfg.get("particles") is not None}
