@@ -79,9 +79,9 @@ def measure(case: str, steps: int, repeats: int, warmup: int) -> dict:
     import numba
 
     from lbmpipe.particles.collisions import CollisionEffect
-    from lbmpipe.effects import StreamCollide
+    from lbmpipe.fluid.effects import StreamCollide
     from lbmpipe.scene import Scene
-    from lbmpipe.solver import simulation_from_scene
+    from lbmpipe.assemble import simulation_from_scene
     from lbmpipe.units import derive
 
     scene = Scene.model_validate(scene_dict(case))

@@ -36,7 +36,7 @@ LEVELS = {"paper": "credible", "accurate": "credible_accurate"}
 
 def build(config: dict, level: str, case: str):
     from lbmpipe.scene import Scene
-    from lbmpipe.solver import simulation_from_scene
+    from lbmpipe.assemble import simulation_from_scene
     from lbmpipe.units import derive
 
     name, c = run_case(config, case if config["cases"][case].get("particles") is None else f"{case}/seed1")

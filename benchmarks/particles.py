@@ -46,7 +46,7 @@ CASES = {
 
 def build(case: str, collisions: bool = False):
     from lbmpipe.scene import Scene
-    from lbmpipe.solver import simulation_from_scene
+    from lbmpipe.assemble import simulation_from_scene
     from lbmpipe.units import derive
 
     data = yaml.safe_load((ROOT / "scenes" / "pipe_re9.4.yaml").read_text())

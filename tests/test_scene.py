@@ -8,7 +8,8 @@ import pytest
 import yaml
 
 from lbmpipe import cli
-from lbmpipe.scene import Scene, SceneError, describe_fields, load_scene
+from lbmpipe.scene import Scene, SceneError, load_scene
+from lbmpipe.scene_docs import describe_fields
 from lbmpipe.units import derive
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -194,7 +195,7 @@ def test_validation_scenes_reach_steady_state_within_spinup():
 
 def test_docs_scene_md_is_generated_from_the_models():
     docs = (ROOT / "docs" / "scene.md").read_text()
-    assert docs == describe_fields(), "regenerate docs/scene.md with lbmpipe.scene.describe_fields()"
+    assert docs == describe_fields(), "regenerate docs/scene.md with lbmpipe.scene_docs.describe_fields()"
     for model in (Scene,) + tuple(type(getattr(Scene.model_validate(PIPE), k)) for k in
                                   ("domain", "fluid", "driving", "initial", "numerics", "run", "outputs")):
         for field, info in model.model_fields.items():

@@ -292,7 +292,7 @@ def simulate_case(scene_path: Path, packing_json: Path | None, out_dir: Path, th
     import numba
 
     numba.set_num_threads(max(1, min(int(threads), numba.config.NUMBA_NUM_THREADS)))
-    from ..solver import run_scene
+    from ..run import run_scene
 
     scene = load_scene(scene_path)
     kwargs = {"checkpoint": checkpoint} if checkpoint is not None else {}

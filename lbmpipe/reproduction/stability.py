@@ -300,7 +300,8 @@ def run_case(case: StabilityCase, dx_mm: float, steps: int, work_dir: Path | Non
     import numba
 
     from ..scene import Scene, SceneError
-    from ..solver import run_loop, simulation_from_scene
+    from ..assemble import simulation_from_scene
+    from ..solver import run_loop
     from ..units import derive
 
     if threads:

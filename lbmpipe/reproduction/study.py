@@ -300,7 +300,7 @@ def warm_up(config: dict, fidelity: str, out_json: Path) -> dict:
     import time
 
     from ..scene import Scene
-    from ..solver import run_scene
+    from ..run import run_scene
     from ..units import derive
 
     groups: dict[str, tuple[int, dict]] = {}
