@@ -27,6 +27,7 @@ totals, mass correction) reports them through ``record()`` under its ``record_ke
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from types import SimpleNamespace
 
 import numpy as np
 
@@ -91,8 +92,10 @@ def assemble(scene, params, grid: bnd.Grid, system=None) -> Step:
     step = Step(fluid=None, force=np.array(params.accel_lu, dtype=np.float64), walls=walls)  # force density = rho_0 g
     if system is not None:
         bouzidi = [e.links for e in walls if isinstance(e, WallBouzidi)]
-        phases = _phases(particle_effects(system, flux_control=flux, bouzidi_links=bouzidi[0] if bouzidi else None,
-                                          wall_links=[e.links for e in walls]))
+        phases = particle_effects(system, flux_control=flux, bouzidi_links=bouzidi[0] if bouzidi else None,
+                                  wall_links=[e.links for e in walls])
+        if not hasattr(phases, "before_control"):  # a plain triple until coupling's named ParticlePhases lands
+            phases = SimpleNamespace(pre=phases[0], before_control=phases[1], after_control=phases[2])
         step.particle_fills, step.flux_correction, step.motion = phases.pre, phases.before_control, phases.after_control
     if flux:
         ctl = FlowRateControl(params.flow_rate_lu, grid.radius, params.nu_lu, grid.shape[2], grid.n_fluid)
@@ -104,22 +107,6 @@ def assemble(scene, params, grid: bnd.Grid, system=None) -> Step:
     floor = num.density_floor if system is not None and len(system.free_ids) else None
     step.fluid = stream_collide(grid.lattice.name, params.relaxation, num.precision, step.force, flux, floor)
     return step
-
-
-def _phases(phases):
-    """``particle_effects``' named phases (``pre``, ``before_control``, ``after_control``); a plain
-    triple in that order is read alike."""
-    if hasattr(phases, "before_control"):
-        return phases
-    pre, before, after = phases
-    return _Phases(pre, before, after)
-
-
-@dataclass
-class _Phases:
-    pre: list
-    before_control: list
-    after_control: list
 
 
 def grid_from_scene(scene, params) -> bnd.Grid:
