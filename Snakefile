@@ -7,23 +7,26 @@ from snakemake.utils import min_version, validate
 
 from pathlib import Path
 
-from lbmpipe.reproduction.cases import (CONFIG_SCHEMA, case_scene, config_problems, estimate_minutes, level_cases,
-                                       level_runs, level_seeds, packing_id, run_case, split_run, write_case_scene)
-from lbmpipe.reproduction.convergence import levels as convergence_levels
+from lbmpipe.reproduction.cases import CONFIG_SCHEMA, config_problems, level_runs, run_case, split_run
 from lbmpipe.reproduction.convergence import write as write_convergence
-from lbmpipe.reproduction.literate import study_level
 from lbmpipe.reproduction.methods import comparison_level
 from lbmpipe.reproduction.methods import write as write_method_comparison
 from lbmpipe.reproduction.seeds import write_combined
 from lbmpipe.reproduction.statistics import write_case_outputs
+from lbmpipe.reproduction import stability as lbm_stability
+from lbmpipe.reproduction import study_plan as lbm_study
+
+sys.path.insert(0, str(Path(workflow.basedir) / "workflow" / "rules"))
+from common import Pipeline, level_regex, run_present  # noqa: E402  (workflow/rules/common.py)
 
 min_version("8.0")
 
 configfile: "config.yaml"
 
 
-# One line per problem and exit status 2, before any job: the schema, the level, every case's scene.
-_CONFIG_PROBLEMS = config_problems(config, Path(workflow.basedir) / CONFIG_SCHEMA)
+# One line per problem and exit status 2, before any job: the schema and the levels here, every
+# case's scene below (once the schema's defaults are in, through the scenes the rules then use).
+_CONFIG_PROBLEMS = config_problems(config, Path(workflow.basedir) / CONFIG_SCHEMA, check=lambda case, level: None)
 if _CONFIG_PROBLEMS:
     print("\n".join(_CONFIG_PROBLEMS), file=sys.stderr)
     sys.exit(2)
@@ -47,10 +50,6 @@ SEEDED_LEVELS = [f for f, fid in config["fidelities"].items() if "seeds" in fid]
 NEW_RUNS = config.get("new_runs", "all")
 
 
-def run_present(level, run):
-    return Path(f"results/{level}/cases/{run}/summary.json").exists()
-
-
 if NEW_RUNS == "all":
     ACTIVE_RUNS = RUNS
 else:
@@ -61,27 +60,12 @@ else:
 ACTIVE_CASES = sorted({split_run(r)[0] for r in ACTIVE_RUNS})
 ACTIVE_PARTICLE_CASES = [c for c in ACTIVE_CASES if c in PARTICLE_CASES]
 
-
-# Inputs the document reads beyond figures and claims (the stability table, the study), as
-# patterns of {fidelity}.
-PAPER_EXTRA_INPUTS = [
-    "results/{fidelity}/tables/stability.csv",
-    "results/{fidelity}/study/recommendation.json",
-    "results/{fidelity}/study/accuracy_cost.png",
-    "results/{fidelity}/study/cost_model.png",
-]
-
-
-def paper_extra_inputs(wildcards):
-    # a level with `study_level` shows that level's stability table and study (the same lattice);
-    # a level another one compares its method with shows that comparison
-    level = study_level(config, wildcards.fidelity)
-    extra = [pattern.format(fidelity=level) for pattern in PAPER_EXTRA_INPUTS]
-    if comparison_level(config, wildcards.fidelity) is not None:
-        extra += [f"results/{wildcards.fidelity}/method/{name}" for name in ("summary.json", "method_comparison.png")]
-    if len(convergence_levels(config, wildcards.fidelity)) > 1:
-        extra.append(f"results/{wildcards.fidelity}/convergence/summary.json")
-    return extra
+# Input functions, resources and each case's scene (built and validated once, here)
+PIPE = Pipeline(config, FIDELITY, NEW_RUNS, RUNS, PARTICLE_CASES, SEEDED_LEVELS)
+_CONFIG_PROBLEMS = config_problems(config, Path(workflow.basedir) / CONFIG_SCHEMA, check=PIPE.check)
+if _CONFIG_PROBLEMS:
+    print("\n".join(_CONFIG_PROBLEMS), file=sys.stderr)
+    sys.exit(2)
 
 
 # a level's name is one path component (results/<level>/...): results/<level>/method/claims.csv is
@@ -90,7 +74,6 @@ wildcard_constraints:
     fidelity="[^/]+",
 
 
-include: "workflow/rules/common.smk"
 include: "workflow/rules/cases.smk"
 include: "workflow/rules/figures.smk"
 include: "workflow/rules/study.smk"

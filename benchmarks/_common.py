@@ -385,7 +385,7 @@ class SweepOnly:
 
     def __post_init__(self):
         from lbmpipe.fluid import boundaries as bnd
-        from lbmpipe.effects import StreamCollide
+        from lbmpipe.fluid.effects import StreamCollide
 
         self._sweep = next(e for e in self.sim.effects if isinstance(e, StreamCollide))
         self.src = bnd.plane_buffer(self.sim.f).copy()

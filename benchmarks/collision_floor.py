@@ -232,7 +232,7 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
 
     from lbmpipe.scene import Scene
-    from lbmpipe.solver import simulation_from_scene
+    from lbmpipe.assemble import simulation_from_scene
     from lbmpipe.units import derive
 
     set_threads(1)

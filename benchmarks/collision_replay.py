@@ -51,7 +51,7 @@ def build_states(at: list[int]) -> dict:
     """Run the case with the fluid and keep the bodies at the steps ``at``."""
     from lbmpipe.particles.collisions import CollisionEffect
     from lbmpipe.scene import Scene
-    from lbmpipe.solver import simulation_from_scene
+    from lbmpipe.assemble import simulation_from_scene
     from lbmpipe.units import derive
 
     scene = Scene.model_validate(scene_dict(CASE))

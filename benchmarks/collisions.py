@@ -10,7 +10,7 @@ start, with a packed suspension (``particles.packed``, packed at start-up by ``l
     jams across the pipe go to the rotating overlap projection (``rotation_projections``).
 
 Dense packings keep nearly every particle in contact, so every step has many pair and wall
-contacts and impulses. The simulation is assembled by ``lbmpipe.solver.simulation_from_scene``
+contacts and impulses. The simulation is assembled by ``lbmpipe.assemble.simulation_from_scene``
 (the same effects as a real run). After ``--warmup`` steps (particles moving and colliding),
 ``--repeats`` windows of ``--steps`` steps are timed with ``Simulation.timers``; the table gives
 the median per step over the windows of
@@ -79,9 +79,9 @@ def measure(case: str, steps: int, repeats: int, warmup: int) -> dict:
     import numba
 
     from lbmpipe.particles.collisions import CollisionEffect
-    from lbmpipe.effects import StreamCollide
+    from lbmpipe.fluid.effects import StreamCollide
     from lbmpipe.scene import Scene
-    from lbmpipe.solver import simulation_from_scene
+    from lbmpipe.assemble import simulation_from_scene
     from lbmpipe.units import derive
 
     scene = Scene.model_validate(scene_dict(case))

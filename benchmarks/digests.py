@@ -22,7 +22,7 @@ import numpy as np
 import yaml
 
 from lbmpipe.scene import Scene
-from lbmpipe.solver import simulation_from_scene
+from lbmpipe.assemble import simulation_from_scene
 from lbmpipe.units import derive
 
 try:

@@ -34,7 +34,7 @@ from _common import set_threads  # noqa: E402
 
 def build(particles: bool):
     from lbmpipe.scene import Scene
-    from lbmpipe.solver import simulation_from_scene
+    from lbmpipe.assemble import simulation_from_scene
     from lbmpipe.units import derive
 
     data = yaml.safe_load((ROOT / "scenes" / "pipe_re9.4.yaml").read_text())

@@ -3,7 +3,7 @@
 Builds each case's scene at the paper-method level (``credible``: BGK, half-way bounce-back) and at
 the accurate one (``credible_accurate``: TRT with magic 1/4 and the Bouzidi pipe wall; see
 ``lbmpipe.reproduction.cases.METHODS``) from the same committed packing (seed 1), exactly as a run
-builds it (``lbmpipe.solver.simulation_from_scene``). After ``--warmup`` steps each repetition
+builds it (``lbmpipe.assemble.simulation_from_scene``). After ``--warmup`` steps each repetition
 times ``--steps`` steps of every contender in turn, the order rotating each round, so a drift of
 the shared machine's load falls on all alike. Prints the median ms/step of each method, the
 ratio accurate / paper per case (median over repetitions of the per-round ratio), and the
@@ -36,7 +36,7 @@ LEVELS = {"paper": "credible", "accurate": "credible_accurate"}
 
 def build(config: dict, level: str, case: str):
     from lbmpipe.scene import Scene
-    from lbmpipe.solver import simulation_from_scene
+    from lbmpipe.assemble import simulation_from_scene
     from lbmpipe.units import derive
 
     name, c = run_case(config, case if config["cases"][case].get("particles") is None else f"{case}/seed1")

@@ -2,7 +2,7 @@
 
 The paper's pipe (50 mm x 100 mm, dx = 1 mm: 50 x 50 x 100 nodes, periodic in z), Re 9.4
 flow-rate driving (tau = 1.78), D3Q15 BGK, half-way bounce-back wall (``scenes/pipe_re9.4.yaml``),
-built through ``lbmpipe.solver.simulation_from_scene`` exactly as a run builds it, with
+built through ``lbmpipe.assemble.simulation_from_scene`` exactly as a run builds it, with
   * 115 cubes of 8 mm (``particles.packed``: 30 % by volume), and
   * 18 cylinders of 16 x 16 mm (30 %),
 neutrally buoyant and free, at packed random positions and orientations (``lbmpipe.particles.packing``),
@@ -46,7 +46,7 @@ CASES = {
 
 def build(case: str, collisions: bool = False):
     from lbmpipe.scene import Scene
-    from lbmpipe.solver import simulation_from_scene
+    from lbmpipe.assemble import simulation_from_scene
     from lbmpipe.units import derive
 
     data = yaml.safe_load((ROOT / "scenes" / "pipe_re9.4.yaml").read_text())

@@ -85,7 +85,7 @@ def main(argv=None) -> int:
     import yaml
 
     from lbmpipe.scene import Scene
-    from lbmpipe.solver import run_scene
+    from lbmpipe.run import run_scene
     from lbmpipe.units import derive
 
     data = yaml.safe_load((ROOT / "scenes" / "pipe_cylinders_demo.yaml").read_text())

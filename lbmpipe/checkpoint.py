@@ -12,7 +12,7 @@ What is saved (generic, so a new effect needs no code here): every ndarray and e
   the collision totals, ...),
 
 plus the run loop's own accumulators (``run``: flow-rate series, profile sums, particle samples,
-initial mass, number of averaged samples, wall time so far), which ``solver.run_scene`` passes in.
+initial mass, number of averaged samples, wall time so far), which ``run.run_scene`` passes in.
 Objects (grid, lattice, kernels, link records) are rebuilt from the scene and not saved;
 per-thread scratch buffers are skipped.
 

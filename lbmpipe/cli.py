@@ -248,7 +248,7 @@ def _cmd_run(args) -> int:
         print(format_report(scene, params, args.scene))
         print(f"\nwriting to {out}")
     try:
-        from lbmpipe.solver import run_scene  # lazy: keeps `check` fast and free of numba compilation
+        from lbmpipe.run import run_scene  # lazy: keeps `check` fast and free of numba compilation
     except ImportError as exc:
         print(f"the solver is not available: {exc}", file=sys.stderr)
         return EXIT_FAILED

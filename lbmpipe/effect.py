@@ -1,4 +1,4 @@
-"""The base class of every effect of a time step (``lbmpipe.effects`` explains the model): a
+"""The base class of every effect of a time step (``lbmpipe.assemble`` explains the model): a
 module of its own that imports nothing of the package, so that every effect, in the fluid and
 the particle packages alike, can import it without importing the assembly."""
 

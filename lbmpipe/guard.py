@@ -1,7 +1,7 @@
 """Run-time guard: stop a diverging run early, say what diverged, where, and what to change.
 
-Every ``every`` steps (``DEFAULT_EVERY`` unless the scene sets ``numerics.guard_every``) the guard
-checks, on the post-collision populations of the current time:
+Every ``every`` steps (``DEFAULT_EVERY`` for a scene's run) the guard checks, on the
+post-collision populations of the current time:
 
 * fluid: a non-finite population (NaN/Inf), the lattice speed ``|u| = |sum_i f_i e_i| / rho``
   (Eq. (4)) above ``u_max`` (default 0.5, i.e. 0.87 c_s with ``c_s = 1/sqrt(3)``: the equilibrium
@@ -24,7 +24,7 @@ checks, on the post-collision populations of the current time:
 
 A failed check raises :class:`Unstable`, whose message names what failed, where (node index and
 position in mm, or particle id), at which step, the likely cause and a fix (smaller dt, TRT,
-finer dx, ...). ``solver.run_scene`` turns it into the summary status ``unstable`` (``lbmpipe
+finer dx, ...). ``run.run_scene`` turns it into the summary status ``unstable`` (``lbmpipe
 run`` exits with status 4) and leaves the last good checkpoint in place.
 
 Cost: the scan reads every population once (a sweep reads and writes them once and does the
@@ -43,6 +43,7 @@ from numba import njit, prange
 
 from .errors import Unstable  # noqa: F401  (raised here; guard.Unstable is the name callers used)
 from .particles.collision_params import OVERLAP_BOUND_FACTOR
+from .particles.collisions import CollisionEffect
 
 #: steps between checks when the scene does not say (cost < 1 % of the step: benchmarks/guard.py)
 DEFAULT_EVERY = 50
@@ -167,8 +168,6 @@ class Guard:
         self.periodic = np.array(g.periodic)
         self.collide = None  # the collision effect, whose running maximum overlap the guard bounds
         if sim.particles is not None:
-            from .particles.collisions import CollisionEffect
-
             self.collide = sim.effect(CollisionEffect)
         self.checks = 0
         self.seconds = 0.0
@@ -374,10 +373,9 @@ class Guard:
 
 
 def guard_for(sim, scene, params) -> Guard:
-    """The guard a scene's simulation gets: interval ``numerics.guard_every`` if the scene has
-    that field, else ``DEFAULT_EVERY``."""
-    every = getattr(scene.numerics, "guard_every", None) or DEFAULT_EVERY
-    guard = Guard(sim, every=every, dx_mm=params.units.dx_m * 1e3, tau=params.tau, mach=params.mach_max,
-                  collision=scene.numerics.collision)
+    """The guard a scene's simulation gets: every ``DEFAULT_EVERY`` steps, its fixes tailored to
+    the sweep's collision operator."""
+    guard = Guard(sim, every=DEFAULT_EVERY, dx_mm=params.units.dx_m * 1e3, tau=params.tau, mach=params.mach_max,
+                  collision=sim.sweep.relaxation.operator)
     guard.mass0 = sim.mass()
     return guard

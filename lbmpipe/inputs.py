@@ -2,7 +2,7 @@
 bodies, the memory a run needs, the output folder and the command-line arguments.
 
 Each check fails with one line naming the field (scene), argument or file and the fix: a scene
-problem as :class:`lbmpipe.scene.SceneError`, an argument or folder problem as
+problem as :class:`lbmpipe.errors.SceneError`, an argument or folder problem as
 :class:`InputError` (``"<kind> error in <where>: <message>. Fix: <fix>"``). Everything here runs
 before the first allocation of the lattice, so ``lbmpipe check`` and ``lbmpipe run`` apply the
 same rules and a refused run has written nothing.
@@ -18,6 +18,9 @@ from pathlib import Path
 
 import numpy as np
 
+from lbmpipe.checkpoint import scene_fingerprint
+from lbmpipe.errors import SceneError
+from lbmpipe.particles.collision_params import CollisionParams, min_periodic_length
 from lbmpipe.particles.shapes import scene_shape, volume
 
 #: bytes per node beside the two population arrays: moments at a sample (4 float64), the profile
@@ -128,8 +131,6 @@ def format_bytes(n: float) -> str:
 def check_memory(scene) -> dict:
     """The memory estimate; raises SceneError (field ``numerics.dx_mm``) when it exceeds what the
     machine has available. Needs no allocation, so a grid of billions of nodes is refused at once."""
-    from lbmpipe.scene import SceneError
-
     est = memory_estimate(scene)
     avail, source = available_memory()
     est["available_bytes"], est["available_source"] = avail, source
@@ -314,8 +315,6 @@ def placement_errors(scene) -> list:
     """Explicit bodies (``particles.bodies``) that reach into a wall, or into each other, by more
     than round-off: SceneErrors with the overlap in mm. Fixed bodies may touch the wall and each
     other (a static obstacle may be built from several bodies, or meet the wall)."""
-    from lbmpipe.scene import SceneError
-
     errs = []
     bodies = scene.particles.bodies if scene.particles is not None else []
     # the collision model's own bound on overlaps: smaller ones are resolved within its tolerance
@@ -347,8 +346,6 @@ def pair_rule_errors(scene) -> list:
     """The collision model's periodic rule, as the run applies it (``collisions.min_periodic_length``):
     a pair search needs every periodic length to hold two interaction ranges. It applies only when
     there are pairs to search: collisions and ``pairs`` on, more than one body, a free one."""
-    from lbmpipe.scene import SceneError
-
     p = scene.particles
     if p is None or not p.collisions.enabled or not p.collisions.pairs:
         return []
@@ -358,8 +355,6 @@ def pair_rule_errors(scene) -> list:
     free = any(not getattr(g, "fixed", False) for g in groups)
     if not free or body_count(scene) < 2:
         return []
-    from lbmpipe.particles.collision_params import CollisionParams, min_periodic_length
-
     dx = scene.numerics.dx_mm
     rb_lu = max(bounding_radius_mm(g) for g in groups) / dx
     need_mm = min_periodic_length(rb_lu, p.collisions.contact_gap_dx, CollisionParams.skin) * dx
@@ -384,8 +379,6 @@ def pair_rule_errors(scene) -> list:
 def random_volume_errors(scene) -> list:
     """A random group whose particles hold more volume than the domain can never be placed:
     refused before anything is allocated for them."""
-    from lbmpipe.scene import SceneError
-
     errs = []
     p = scene.particles
     if p is None:
@@ -456,8 +449,6 @@ def out_dir_owner(out: Path) -> dict | None:
     try:
         doc = json.loads(path.read_text(encoding="utf-8"))
         scene = doc.get("scene")
-        from lbmpipe.checkpoint import scene_fingerprint
-
         return {"name": (scene or {}).get("name", "?"), "status": doc.get("status"),
                 "fingerprint": scene_fingerprint(scene) if isinstance(scene, dict) else None}
     except (OSError, ValueError, UnicodeDecodeError, AttributeError):

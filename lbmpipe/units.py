@@ -17,24 +17,15 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field, replace
+from lbmpipe import cost
 from lbmpipe.errors import SceneError
+from lbmpipe.fluid.collision import MAGIC_EXACT_WALL, CollisionOperator, Relaxation, trt_omega_minus  # noqa: F401
 from lbmpipe.fluid.lattice import CS2
 from lbmpipe.particles.shapes import scene_shape, volume
 
 CS = math.sqrt(CS2)
 #: BGK is (linearly) stable only for tau > 1/2, and in practice marginal just above it.
 TAU_MARGINAL = 0.55
-#: With half-way bounce-back, the Poiseuille profile is exact when the "magic" product
-#: Lambda = (tau_+ - 1/2)(tau_- - 1/2) equals 3/16 (Ginzburg); for BGK Lambda = (tau - 1/2)^2.
-MAGIC_EXACT_WALL = 3.0 / 16.0
-
-
-def trt_omega_minus(tau: float, magic: float = MAGIC_EXACT_WALL) -> float:
-    """TRT odd-moment relaxation rate ``1 / tau_-`` for the even-moment ``tau`` (viscosity) and the
-    magic parameter ``Lambda = (tau - 1/2)(tau_- - 1/2)``."""
-    return 1.0 / (magic / (tau - 0.5) + 0.5)
-
-
 #: Default of numerics.mach_limit: beyond it the O(Ma^2) compressibility error is no longer small.
 DEFAULT_MACH_LIMIT = 0.35
 
@@ -151,8 +142,7 @@ class LatticeParams:
     shape: tuple[int, int, int]  # fluid domain extent in nodes (x, y, z)
     nu_lu: float
     tau: float
-    omega: float
-    omega_minus: float  # TRT odd-moment rate; equals omega for BGK
+    relaxation: Relaxation  # the collision operator with its rates omega (= 1/tau) and omega_minus
     u_mean_lu: float
     u_max_lu: float
     mach_max: float  # u_max_lu / c_s
@@ -169,6 +159,16 @@ class LatticeParams:
     char_length_lu: float = 0.0  # length used in `reynolds`
     u_max_basis: str = ""  # which estimate gave u_max (printed by `lbmpipe check`)
     warnings: tuple[str, ...] = field(default=())
+
+    @property
+    def omega(self) -> float:
+        """Even-moment (viscous) relaxation rate ``1 / tau``."""
+        return self.relaxation.omega
+
+    @property
+    def omega_minus(self) -> float:
+        """Odd-moment relaxation rate (TRT); equals ``omega`` for BGK."""
+        return self.relaxation.omega_minus
 
 
 def _floor_sig(x: float, digits: int = 3) -> float:
@@ -308,8 +308,6 @@ def _expected_velocities(
 def derive(scene) -> LatticeParams:
     """Lattice parameters of ``scene`` (a validated ``lbmpipe.scene.Scene``); raises SceneError
     when they make the run meaningless."""
-    from lbmpipe import cost
-
     num, dom, run = scene.numerics, scene.domain, scene.run
     units = Units(num.dx_mm * 1e-3, num.dt_s, scene.fluid.density_kg_m3)
     if dom.kind == "pipe":
@@ -330,11 +328,7 @@ def derive(scene) -> LatticeParams:
             "negative or zero, so the BGK/TRT relaxation is unstable",
             f"increase numerics.dt_s to at least {dt_ok:.3g} s (tau = {TAU_MARGINAL}) or increase the viscosity",
         )
-    omega = 1.0 / tau
-    if num.collision == "trt":
-        omega_minus = trt_omega_minus(tau, num.trt_magic)
-    else:
-        omega_minus = omega
+    relaxation = Relaxation.from_tau(num.collision, tau, num.trt_magic)
 
     drv = scene.driving
     accel_lu = tuple(units.acceleration(a) for a in drv.acceleration_m_s2) if drv.kind == "body_force" else (0.0, 0.0, 0.0)
@@ -386,11 +380,12 @@ def derive(scene) -> LatticeParams:
         if abs(units.time_phys(steps) - seconds) > 1e-6 * max(seconds, num.dt_s):
             warnings.append(f"{name} = {seconds:g} s is not a multiple of dt; using {steps} steps "
                             f"({units.time_phys(steps):g} s)")
-    if num.collision == "bgk" and tau < TAU_MARGINAL:
+    bgk = relaxation.operator is CollisionOperator.BGK
+    if bgk and tau < TAU_MARGINAL:
         warnings.append(f"tau = {tau:.4g} is close to 1/2: BGK is marginally stable there; "
                         "consider collision: trt or a larger dt_s")
     has_walls = dom.kind == "pipe" or any(getattr(dom.walls, a) == "wall" for a in "xyz")
-    if num.collision == "bgk" and num.wall == "bounce_back" and has_walls and tau > 1.5:
+    if bgk and num.wall == "bounce_back" and has_walls and tau > 1.5:
         warnings.append(
             f"BGK with half-way bounce-back puts the effective wall at a tau-dependent position "
             f"(exact for Poiseuille flow only at Lambda = (tau-1/2)^2 = 3/16, tau = 0.933; here "
@@ -400,7 +395,7 @@ def derive(scene) -> LatticeParams:
                         f"raised to {num.mach_limit:g}): compressibility errors of order Ma^2 = {mach**2:.2g}")
 
     params = LatticeParams(
-        units=units, shape=shape, nu_lu=nu_lu, tau=tau, omega=omega, omega_minus=omega_minus,
+        units=units, shape=shape, nu_lu=nu_lu, tau=tau, relaxation=relaxation,
         u_mean_lu=u_mean, u_max_lu=u_max, mach_max=mach, reynolds=reynolds, accel_lu=accel_lu,
         flow_rate_lu=flow_rate_lu, wall_velocities_lu=wall_velocities_lu, n_steps=n_steps,
         spinup_steps=spinup_steps, sample_every=sample_every, estimated_seconds=0.0,

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from lbmpipe.fluid import boundaries as bnd
-from lbmpipe import effects as fx
+from lbmpipe.fluid import effects as fx
 from lbmpipe.fluid import observables as obs
 from lbmpipe.fluid.lattice import get_lattice
 from lbmpipe.solver import Simulation

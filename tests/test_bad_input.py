@@ -523,7 +523,7 @@ def test_overlap_depth_of_explicit_bodies_matches_the_collision_models_narrow_ph
 def test_a_kill_while_writing_the_outputs_keeps_the_checkpoint_and_the_rerun_resumes(tmp_path, monkeypatch):
     from lbmpipe import outputs
     from lbmpipe.scene import Scene
-    from lbmpipe.solver import run_scene
+    from lbmpipe.run import run_scene
     from lbmpipe.units import derive
 
     scene = Scene.model_validate(PIPE)
@@ -575,7 +575,7 @@ def test_snakemake_refuses_a_bad_config_with_one_line_before_any_job(tmp_path):
 def test_guard_blames_the_wall_film_for_a_failure_at_a_wall_node_not_the_mach_number():
     from lbmpipe.guard import Unstable
     from lbmpipe.scene import Scene
-    from lbmpipe.solver import simulation_from_scene
+    from lbmpipe.assemble import simulation_from_scene
     from lbmpipe.units import derive
 
     data = _with(PIPE, particles={"bodies": [{"shape": "cube", "edge_mm": 4.0, "position_mm": [5.0, 0, 10]}]},
@@ -604,10 +604,10 @@ def test_guard_blames_the_wall_film_for_a_failure_at_a_wall_node_not_the_mach_nu
 
 
 def test_guard_names_the_density_floor_when_it_has_added_much_of_the_fluid_mass():
-    from lbmpipe import effects as fx
+    from lbmpipe.fluid import effects as fx
     from lbmpipe.guard import Unstable
     from lbmpipe.scene import Scene
-    from lbmpipe.solver import simulation_from_scene
+    from lbmpipe.assemble import simulation_from_scene
     from lbmpipe.units import derive
 
     data = _with(PIPE, particles={"bodies": [{"shape": "cube", "edge_mm": 5.0, "position_mm": [0, 0, 10]}]})

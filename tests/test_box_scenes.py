@@ -9,7 +9,8 @@ import pandas as pd
 import pytest
 
 from lbmpipe.scene import Scene, SceneError
-from lbmpipe.solver import run_scene, simulation_from_scene
+from lbmpipe.assemble import simulation_from_scene
+from lbmpipe.run import run_scene
 from lbmpipe.units import derive
 
 H = 16  # nodes across the walls

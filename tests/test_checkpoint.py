@@ -14,7 +14,8 @@ import yaml
 
 from lbmpipe import checkpoint as ckpt
 from lbmpipe.scene import Scene
-from lbmpipe.solver import run_scene, simulation_from_scene
+from lbmpipe.assemble import simulation_from_scene
+from lbmpipe.run import run_scene
 from lbmpipe.units import derive
 
 # A small flow-rate-driven pipe with free particles: two cubes and a cylinder launched so that a

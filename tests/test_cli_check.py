@@ -29,8 +29,8 @@ def _snapshot(directory: Path) -> dict:
 
 @pytest.fixture
 def fake_solver(monkeypatch):
-    """Stand-in for lbmpipe.solver recording its calls; `status` sets what run_scene returns."""
-    module = types.ModuleType("lbmpipe.solver")
+    """Stand-in for lbmpipe.run recording its calls; `status` sets what run_scene returns."""
+    module = types.ModuleType("lbmpipe.run")
     module.calls = []
     module.status = "completed"
 
@@ -41,7 +41,7 @@ def fake_solver(monkeypatch):
         return {"status": module.status}
 
     module.run_scene = run_scene
-    monkeypatch.setitem(sys.modules, "lbmpipe.solver", module)
+    monkeypatch.setitem(sys.modules, "lbmpipe.run", module)
     return module
 
 

@@ -50,9 +50,9 @@ def test_closing_summary_of_an_interrupted_run_says_how_far_it_got():
 
 @pytest.fixture
 def fake_solver(monkeypatch):
-    module = types.ModuleType("lbmpipe.solver")
+    module = types.ModuleType("lbmpipe.run")
     module.run_scene = lambda scene, params, out_dir, progress, max_steps: dict(SUMMARY, steps_requested=2000)
-    monkeypatch.setitem(sys.modules, "lbmpipe.solver", module)
+    monkeypatch.setitem(sys.modules, "lbmpipe.run", module)
     return module
 
 

@@ -12,7 +12,7 @@ import pytest
 
 from lbmpipe.fluid import boundaries as bnd
 from lbmpipe.particles import coupling as cp
-from lbmpipe import effects as fx
+from lbmpipe.fluid import effects as fx
 from lbmpipe.particles import shapes
 from lbmpipe.fluid.lattice import get_lattice
 from lbmpipe.particles.rigid import Bodies, quat_from_axis_angle, random_quaternions, rotate
@@ -316,7 +316,7 @@ def test_interpolated_wall_falls_back_to_bounce_back_where_its_second_node_is_a_
 
 def test_scene_without_particles_runs_no_particle_effect():
     from lbmpipe.scene import load_scene
-    from lbmpipe.solver import simulation_from_scene
+    from lbmpipe.assemble import simulation_from_scene
     from lbmpipe.units import derive
     from pathlib import Path
 

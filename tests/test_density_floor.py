@@ -6,12 +6,13 @@ densest Re 26 case finite."""
 import numpy as np
 import pytest
 
-from lbmpipe import effects as fx
+from lbmpipe.fluid import effects as fx
 from lbmpipe.fluid.boundaries import box_grid
 from lbmpipe.guard import Unstable
 from lbmpipe.fluid.lattice import get_lattice
 from lbmpipe.scene import Scene
-from lbmpipe.solver import Simulation, simulation_from_scene
+from lbmpipe.assemble import simulation_from_scene
+from lbmpipe.solver import Simulation
 from lbmpipe.units import derive
 
 

@@ -15,7 +15,8 @@ import yaml
 from lbmpipe import fields
 from lbmpipe.particles.rigid import quat_to_matrices
 from lbmpipe.scene import Scene
-from lbmpipe.solver import run_scene, simulation_from_scene
+from lbmpipe.assemble import simulation_from_scene
+from lbmpipe.run import run_scene
 from lbmpipe.units import derive
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -6,7 +6,7 @@ import pytest
 
 from fluid_cases import omega_minus, observed_order, pipe_poiseuille, run_to_steady
 from lbmpipe.fluid import boundaries as bnd
-from lbmpipe import effects as fx
+from lbmpipe.fluid import effects as fx
 from lbmpipe.fluid import observables as obs
 from lbmpipe.fluid.kernels import KernelSpec, render
 from lbmpipe.fluid.lattice import get_lattice

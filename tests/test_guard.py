@@ -11,7 +11,8 @@ import yaml
 from lbmpipe.cli import EXIT_FAILED, run_cli
 from lbmpipe.guard import CS, Guard, GuardLimits, Unstable
 from lbmpipe.scene import Scene
-from lbmpipe.solver import run_scene, simulation_from_scene
+from lbmpipe.assemble import simulation_from_scene
+from lbmpipe.run import run_scene
 from lbmpipe.units import derive
 
 PIPE = {

@@ -11,7 +11,8 @@ import pytest
 from lbmpipe.particles import placement as pt
 from lbmpipe.scene import Scene, SceneError, load_scene
 from lbmpipe.particles.shapes import CUBE, CYLINDER, SPHERE
-from lbmpipe.solver import run_scene, simulation_from_scene
+from lbmpipe.assemble import simulation_from_scene
+from lbmpipe.run import run_scene
 from lbmpipe.units import derive
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -10,12 +10,13 @@ import pytest
 import yaml
 
 from lbmpipe.reproduction import cases
-from lbmpipe import effects as fx
+from lbmpipe.fluid import effects as fx
 from lbmpipe.particles.collisions import CollisionEffect
 from lbmpipe.particles.coupling import MassCorrection
 from lbmpipe.outputs import write_summary
 from lbmpipe.scene import Scene, SceneError, load_scene
-from lbmpipe.solver import run_scene, simulation_from_scene
+from lbmpipe.assemble import assemble, simulation_from_scene
+from lbmpipe.run import run_scene
 from lbmpipe.units import derive
 
 SMOKE = {"dx_mm": 5.0, "dt_per_mm_s": 1.0e-3, "re26_dt_factor": 0.5, "mach_limit": 0.6,
@@ -200,14 +201,14 @@ def test_a_case_named_in_duration_s_by_case_averages_longer_and_only_that_case()
 
 def test_assembled_step_orders_walls_particle_fills_sweep_flux_correction_control_collisions_motion():
     from lbmpipe.particles.coupling import ParticleCoupling, ParticleFluxCorrection, ParticleMotion
-    from lbmpipe.solver import grid_from_scene, particle_system_from_scene
+    from lbmpipe.assemble import grid_from_scene, particle_system_from_scene
 
     data = small_pipe({"random": [{"shape": "cube", "edge_mm": 8, "count": 3, "seed": 1}]})
     scene = Scene.model_validate(data)
     params = derive(scene)
     grid = grid_from_scene(scene, params)
     system, _ = particle_system_from_scene(scene, params, grid)
-    step = fx.assemble(scene, params, grid, system)
+    step = assemble(scene, params, grid, system)
     kinds = [type(e) for e in step.effects]
     assert kinds == [fx.WallBounceBack, ParticleCoupling, fx.StreamCollide, ParticleFluxCorrection,
                      fx.FlowRateControl, CollisionEffect, ParticleMotion, MassCorrection]
@@ -219,7 +220,7 @@ def test_assembled_step_orders_walls_particle_fills_sweep_flux_correction_contro
     assert [type(e) for e in sim.effects] == kinds
     # without particles: no floor in the kernel
     flow = Scene.model_validate({k: v for k, v in data.items() if k != "particles"})
-    bare = fx.assemble(flow, derive(flow), grid_from_scene(flow, derive(flow)))
+    bare = assemble(flow, derive(flow), grid_from_scene(flow, derive(flow)))
     assert not bare.fluid.spec.floor and bare.fluid.rho_min == 0.0
 
 

@@ -8,7 +8,8 @@ import pytest
 import yaml
 
 from lbmpipe import cli
-from lbmpipe.scene import Scene, SceneError, describe_fields, load_scene
+from lbmpipe.scene import Scene, SceneError, load_scene
+from lbmpipe.scene_docs import describe_fields
 from lbmpipe.units import derive
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -51,6 +52,11 @@ BAD_SCENES = [
     ("mistyped_key", edit(PIPE, "numerics.dx_m", 1.0), "numerics.dx_m", ["unknown key 'dx_m'", "did you mean 'dx_mm'"]),
     ("wrong_type", edit(PIPE, "numerics.dt_s", "fast"), "numerics.dt_s", ["valid number", "'fast'"]),
     ("bad_choice", edit(PIPE, "numerics.lattice", "D2Q9"), "numerics.lattice", ["'D2Q9' is not an allowed value", "D3Q15"]),
+    ("bad_collision_operator", edit(PIPE, "numerics.collision", "mrt"), "numerics.collision",
+     ["'mrt' is not an allowed value", "'bgk' or 'trt'"]),
+    # the guard's interval is fixed (guard.DEFAULT_EVERY); a scene cannot set it
+    ("guard_interval_not_a_scene_key", edit(PIPE, "numerics.guard_every", 10), "numerics.guard_every",
+     ["unknown key 'guard_every'"]),
     ("section_not_mapping", edit(PIPE, "run", 5), "run", ["expected a mapping"]),
     ("missing_required", edit(PIPE, "domain.kind", ...), "domain.kind", ["required field is missing"]),
     ("negative_viscosity", edit(BOX, "fluid.viscosity_m2_s", -1e-4), "fluid.viscosity_m2_s", ["greater than 0"]),
@@ -194,7 +200,7 @@ def test_validation_scenes_reach_steady_state_within_spinup():
 
 def test_docs_scene_md_is_generated_from_the_models():
     docs = (ROOT / "docs" / "scene.md").read_text()
-    assert docs == describe_fields(), "regenerate docs/scene.md with lbmpipe.scene.describe_fields()"
+    assert docs == describe_fields(), "regenerate docs/scene.md with lbmpipe.scene_docs.describe_fields()"
     for model in (Scene,) + tuple(type(getattr(Scene.model_validate(PIPE), k)) for k in
                                   ("domain", "fluid", "driving", "initial", "numerics", "run", "outputs")):
         for field, info in model.model_fields.items():

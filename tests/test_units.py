@@ -131,6 +131,26 @@ def test_trt_odd_rate_gives_the_requested_magic_parameter():
     assert bgk.omega_minus == bgk.omega
 
 
+def test_the_scene_collision_operator_travels_as_one_relaxation_value_into_the_kernel_spec():
+    from lbmpipe.fluid.collision import CollisionOperator
+    from lbmpipe.fluid.effects import fluid_spec
+
+    p = derive(channel_scene(numerics={"collision": "trt", "trt_magic": 0.25}))
+    assert p.relaxation.operator is CollisionOperator.TRT
+    assert (p.omega, p.omega_minus) == (p.relaxation.omega, p.relaxation.omega_minus)
+    spec = fluid_spec("D3Q15", p.relaxation, "float64", (0.0, 0.0, 0.0), False, None)
+    assert spec.collision is CollisionOperator.TRT and spec.describe().startswith("stream+collide D3Q15 TRT")
+
+
+def test_an_unknown_collision_operator_is_refused_by_the_scene_and_by_the_kernel_spec():
+    from lbmpipe.fluid.kernels import KernelSpec
+
+    with pytest.raises(SceneError, match="numerics.collision.*'mrt'.*bgk.*trt"):
+        channel_scene(numerics={"collision": "mrt"})
+    with pytest.raises(ValueError, match="unknown collision operator 'mrt': choose bgk or trt"):
+        KernelSpec("D3Q15", "mrt")
+
+
 def test_plane_poiseuille_centre_velocity_is_g_h2_over_8nu():
     p = derive(channel_scene())
     g = p.accel_lu[0]

@@ -65,6 +65,7 @@ from numba.core.compiler_machinery import register_pass
 from numba.core.typed_passes import NativeLowering
 
 from .. import cache_root
+from .collision import CollisionOperator
 from .lattice import Lattice, get_lattice
 
 GENERATOR_VERSION = "7"
@@ -75,11 +76,19 @@ class KernelSpec:
     """What one generated kernel does. Each field is an effect the scene asked for."""
 
     lattice: str = "D3Q15"
-    collision: str = "bgk"  # "bgk" | "trt"
+    collision: CollisionOperator = CollisionOperator.BGK  # a name ("bgk") is converted
     forcing: bool = False  # Guo body force
     flux: bool = False  # return the total z-momentum (for the flow-rate controller)
     precision: str = "float64"  # "float64" | "float32"
     floor: bool = False  # density floor for under-resolved films (scenes with free particles)
+
+    def __post_init__(self):
+        try:
+            op = CollisionOperator(self.collision)
+        except ValueError:
+            choices = " or ".join(m.value for m in CollisionOperator)
+            raise ValueError(f"unknown collision operator {self.collision!r}: choose {choices}") from None
+        object.__setattr__(self, "collision", op)  # frozen: set once, here
 
     def describe(self) -> str:
         parts = [f"stream+collide {self.lattice} {self.collision.upper()}"]
@@ -96,11 +105,6 @@ class KernelSpec:
 def _lit(x: float, precision: str) -> str:
     s = repr(float(x))
     return f"np.float32({s})" if precision == "float32" else s
-
-
-def _frac(w: float) -> str:
-    fr = Fraction(w).limit_denominator(10000)
-    return f"({fr.numerator}.0/{fr.denominator}.0)"
 
 
 def _weighted_sum(coeffs, names) -> str:
@@ -168,7 +172,7 @@ def _body(lat: Lattice, spec: KernelSpec, indent: str, inp, out) -> str:
     def g(i):  # the floor's relaxed mass on population i
         return f" + g_{_wname(w[i])}" if spec.floor else ""
 
-    trt = spec.collision == "trt"
+    trt = spec.collision is CollisionOperator.TRT
     # Rest population: even only.
     lines.append(f"feq = {L(w[0])} * rho * ({L(1.0)} - usq)")
     if spec.forcing:
@@ -274,7 +278,7 @@ def render(spec: KernelSpec) -> str:
         raise ValueError("the kernel expects the rest population first")  # halo slot of plane 0 at index -1
     P = spec.precision
     cast = (lambda v: f"np.float32({v})") if P == "float32" else (lambda v: f"float({v})")
-    trt = spec.collision == "trt"
+    trt = spec.collision is CollisionOperator.TRT
     # run-time parameters of the collision, handed to the row sweep
     params = ["om_p"] + (["om_m"] if trt else [])
     setup = [f"om_p = {cast('omega')}"] + ([f"om_m = {cast('omega_m')}"] if trt else [])
@@ -481,8 +485,6 @@ def get_kernel(spec: KernelSpec):
     """
     if spec in _LOADED:
         return _LOADED[spec]
-    if spec.collision not in ("bgk", "trt"):
-        raise ValueError(f"unknown collision operator {spec.collision!r}: choose bgk or trt")
     if spec.precision not in ("float64", "float32"):
         raise ValueError(f"unknown precision {spec.precision!r}: choose float64 or float32")
     src = render(spec)

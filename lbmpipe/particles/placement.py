@@ -27,9 +27,11 @@ import numpy as np
 import pandas as pd
 from numba import njit
 
+from ..outputs import replace_atomically
+from . import packing
 from .rigid import Bodies, random_quaternions, rotate_inv
 from ..scene import SHAPE_SIZES, SceneError
-from .shapes import SHAPE_NAMES, bounding_radius, make_shape, volume
+from .shapes import bounding_radius, make_shape, volume
 
 MAX_ATTEMPTS = 200_000
 
@@ -195,8 +197,6 @@ def packed_group(g, scene) -> tuple[np.ndarray, np.ndarray, dict]:
     does not depend on dx). Returns ``(x_mm (N, 3), q (N, 4), info)``; info holds the target and
     achieved concentrations, the count and the packing time. Raises ``SceneError`` (naming the
     highest concentration reached) when the target cannot be packed or the file does not match."""
-    from . import packing
-
     kind, h = make_shape(_shape_spec(g, 1.0))  # mm
     radius, length = scene.domain.diameter_mm / 2.0, scene.domain.length_mm
     n = packing.count_for_concentration(kind, h, radius, length, g.concentration)
@@ -247,8 +247,6 @@ def write_static(out_dir: Path, static: list[dict]) -> str:
     """``particles_static.csv``: one row per particle, its shape and size (NaN where the shape has
     no such size), density and whether it is fixed."""
     df = pd.DataFrame(static, columns=list(STATIC_COLUMNS))
-    from ..outputs import replace_atomically
-
     replace_atomically(Path(out_dir) / "particles_static.csv", lambda tmp: df.to_csv(tmp, index=False))
     return "particles_static.csv"
 
@@ -294,12 +292,6 @@ class ParticleRecorder:
         return df
 
     def write(self, out_dir: Path) -> str:
-        from ..outputs import replace_atomically
-
         df = self.frame()
         replace_atomically(Path(out_dir) / "particles.parquet", lambda tmp: df.to_parquet(tmp, index=False))
         return "particles.parquet"
-
-
-def shape_name(kind: int) -> str:
-    return SHAPE_NAMES[int(kind)]

@@ -27,7 +27,7 @@ from ..particles.packing import count_for_concentration
 from ..particles.placement import PACKING_COLUMNS, PARQUET_COLUMNS, STATIC_COLUMNS, packed_group, write_packing
 from ..particles.shapes import make_shape
 from ..scene import Scene, SceneError, load_scene
-from ..solver import run_scene
+from ..run import run_scene
 from ..units import derive
 from .pipe import DT_PER_MM_S, FLOWS, PIPE, pipe_scene, time_step
 
@@ -209,25 +209,25 @@ def write_unpackable(case_dir: Path, case_name: str, packing_info: dict) -> None
     (case_dir / "flow_rate.csv").write_text("t_s,q_m3_s,force_density_N_m3,max_density_deviation,core_velocity_ratio\n")
 
 
-def estimate_minutes(config: dict, fidelity_name: str, case_name: str, root: Path = Path(".")) -> int:
+def estimate_minutes(config: dict, fidelity_name: str, case_name: str, root: Path = Path("."),
+                     scene: Scene | None = None) -> int:
     """Wall-time estimate of one case in whole minutes, for the cluster profile's ``runtime``
     resource (its time limit) and the jobs' priorities: the wall-time model of the production runs
     (``lbmpipe.cost.predict`` with the coefficients of the first of ``WALL_MODELS`` under ``root``,
     fitted by ``lbmpipe.reproduction.runcost``) at a core of the case's own, times
     ``TIME_LIMIT_MARGIN``; never less than the node-count estimate
-    (``lbmpipe.cost``, with a factor for particle work), which is all there is before any run."""
+    (``lbmpipe.cost``, with a factor for particle work), which is all there is before any run.
+    ``scene``: the case's scene already validated (the workflow's), not built again."""
     fid = config["fidelities"][fidelity_name]
     case_name, case = run_case(config, case_name)
-    data = case_scene(case_name, case, fidelity_name, fid)
-    fluid_only = copy.deepcopy(data)
-    fluid_only.pop("particles", None)
-    params = derive(Scene.model_validate(fluid_only))
+    if scene is None:
+        scene = Scene.model_validate(case_scene(case_name, case, fidelity_name, fid))
+    params = derive(scene.model_copy(update={"particles": None}))
     part = case.get("particles")
     factor = 1.0 if part is None else PARTICLE_COST_FACTOR[part["concentration"] > 0.4]
     minutes = max(1, int(2 * factor * params.estimated_seconds / 60.0) + 1)
     model = wall_model(fidelity_name, root)
     if model is not None:
-        scene = Scene.model_validate(data)
         seconds = predict(scene, derive(scene), model, 1.0)
         minutes = max(minutes, int(TIME_LIMIT_MARGIN * seconds / 60.0) + 1)
     return minutes
@@ -259,17 +259,19 @@ def wall_model(level: str, root: Path = Path(".")) -> dict | None:
 
 
 def write_case_scene(config: dict, fidelity_name: str, case_name: str, path: Path,
-                     packing_csv: Path | None = None) -> Scene:
+                     packing_csv: Path | None = None, scene: Scene | None = None) -> Scene:
     """Validate the case's scene and write it as YAML (the file ``lbmpipe run`` reads); the
-    packing file is referenced relative to the scene file."""
+    packing file is referenced relative to the scene file. ``scene``: the case's scene already
+    validated (the workflow's), not validated again."""
     fid = config["fidelities"][fidelity_name]
     rel = os.path.relpath(Path(packing_csv).resolve(), Path(path).resolve().parent) if packing_csv else None
     name, case = run_case(config, case_name)
     data = case_scene(name, case, fidelity_name, fid, rel)
-    probe = copy.deepcopy(data)
-    for g in (probe.get("particles") or {}).get("packed", []):
-        g.pop("file", None)  # validate without reading the file
-    scene = Scene.model_validate(probe)  # fail here, naming the field, rather than in the solver
+    if scene is None:
+        probe = copy.deepcopy(data)
+        for g in (probe.get("particles") or {}).get("packed", []):
+            g.pop("file", None)  # validate without reading the file
+        scene = Scene.model_validate(probe)  # fail here, naming the field, rather than in the solver
     Path(path).parent.mkdir(parents=True, exist_ok=True)
     Path(path).write_text(yaml.safe_dump(data, sort_keys=False))
     return scene
@@ -300,10 +302,12 @@ def simulate_case(scene_path: Path, packing_json: Path | None, out_dir: Path, th
 CONFIG_SCHEMA = "workflow/schemas/config.schema.yaml"
 
 
-def config_problems(config: dict, schema_path: str | Path) -> list[str]:
+def config_problems(config: dict, schema_path: str | Path, check=None) -> list[str]:
     """Problems of a pipeline config, each one line ``config error in <key>: ... Fix: ...``:
     the JSON schema (``schema_path``), the selected fidelity, and every case's scene at every
-    fidelity level (validated as ``lbmpipe check`` would, before a job starts). Empty if none."""
+    fidelity level (validated as ``lbmpipe check`` would, before a job starts). Empty if none.
+    ``check(case, level)`` validates one case's scene (the workflow's, which keeps it); by
+    default here."""
 
     if not isinstance(config, dict):
         return [f"config error in the config file: it must hold a mapping, got {type(config).__name__}. "
@@ -336,8 +340,10 @@ def config_problems(config: dict, schema_path: str | Path) -> list[str]:
         for fname, fid in config["fidelities"].items():
             n_before = len(out)
             try:
-                data = case_scene(cname, case, fname, fid)
-                derive(Scene.model_validate(data))
+                if check is not None:
+                    check(cname, fname)
+                else:
+                    derive(Scene.model_validate(case_scene(cname, case, fname, fid)))
             except SceneError as exc:
                 e = exc.errors[0]
                 out.append(f"config error in cases.{cname} at fidelities.{fname}: its scene's {e.field}: {e.message}. "

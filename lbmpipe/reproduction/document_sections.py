@@ -71,7 +71,7 @@ DECISIONS: list[tuple[str, str]] = [
     ("Viscosity", "The two flow rates imply different viscosities; ν is taken from the Reynolds number "
                   r"($\mathrm{Re} = U D / \nu$, $U = Q / A$), not from a fluid property (paper/reading.md, D2)."),
     ("Driving", "Periodic inlet and outlet: the flow is driven by a body force (pressure gradient) that a "
-                "controller adjusts to hold the mixture flow rate Q (`lbmpipe.effects`)."),
+                "controller adjusts to hold the mixture flow rate Q (`lbmpipe.fluid.effects`)."),
     ("Time step at Re 26", "The paper's dt gives a centre-line Mach number near the limit of the scheme "
                            "at Re 26; every level multiplies dt there by {re26_dt_factors} (config "
                            "`re26_dt_factor`); the parameter table shows the resulting τ and Mach."),
@@ -99,7 +99,7 @@ DECISIONS: list[tuple[str, str]] = [
                                        "cases diverged. The sweep holds such nodes at the density "
                                        "`numerics.density_floor` (0.5) by adding mass at zero momentum; each "
                                        "summary and the stability table report the mass added "
-                                       "(`lbmpipe.effects.StreamCollide`)."),
+                                       "(`lbmpipe.fluid.effects.StreamCollide`)."),
     ("Experimental data", "The values of Zitoun et al. are not in our text and are never invented; a figure "
                           "shows them only from a data file whose source is stated."),
 ]

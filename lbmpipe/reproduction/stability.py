@@ -59,7 +59,8 @@ from ..particles.collision_params import CollisionParams
 from ..particles.contact import contact_pipe
 from ..particles.placement import packed_group, write_packing
 from ..scene import Scene, SceneError
-from ..solver import run_loop, simulation_from_scene
+from ..assemble import simulation_from_scene
+from ..solver import run_loop
 from ..units import derive
 from .pipe import DENSITY_KG_M3, pipe_scene, time_step
 

@@ -57,7 +57,7 @@ import numpy as np
 import yaml
 
 from ..scene import Scene
-from ..solver import run_scene
+from ..run import run_scene
 from ..units import derive
 from . import steady
 from .pipe import DENSITY_KG_M3, DT_PER_MM_S, FLOWS, PIPE, time_step

@@ -19,7 +19,7 @@ rule pack:
         "results/packings/{packing}.log",
     threads: 1
     # longest case first: its packing and scene go before the others (see simulate_particles)
-    priority: _packing_priority
+    priority: PIPE.packing_priority
     resources:
         runtime=3,
     script:
@@ -34,16 +34,16 @@ rule scene:
     conda:
         "../envs/lbmpipe.yaml"
     input:
-        unpack(_packing_input),
+        unpack(PIPE.packing_input),
     output:
         "results/{fidelity}/cases/{case}/scene.yaml",
     log:
         "results/{fidelity}/logs/{case}.scene.log",
     params:
-        settings=_scene_settings,
-    priority: _runtime
+        settings=PIPE.scene_settings,
+    priority: PIPE.runtime
     run:
-        write_case_scene(config, wildcards.fidelity, wildcards.case, output[0], packing_csv=input.get("packing"))
+        PIPE.write_scene(wildcards.fidelity, wildcards.case, output[0], packing_csv=input.get("packing"))
 
 
 rule simulate_flow:
@@ -62,12 +62,12 @@ rule simulate_flow:
         "results/{fidelity}/logs/{case}.simulate.log",
     benchmark:
         "results/{fidelity}/benchmarks/{case}.simulate.tsv"
-    threads: _threads
+    threads: PIPE.threads
     # longest first (the cost estimate), so that the last case to start is a short one
-    priority: _runtime
+    priority: PIPE.runtime
     resources:
         mem_mb=2000,
-        runtime=_time_limit,
+        runtime=PIPE.time_limit,
     params:
         # a particle-free case must complete: its flow is the reference of Fig. 10
         accept=["completed"],
@@ -82,7 +82,7 @@ rule simulate_particles:
         "../envs/lbmpipe.yaml"
     input:
         scene=ancient("results/{fidelity}/cases/{case}/scene.yaml"),
-        packing_info=ancient(_packing_info),
+        packing_info=ancient(PIPE.packing_info),
     output:
         summary="results/{fidelity}/cases/{case}/summary.json",
         flow_rate="results/{fidelity}/cases/{case}/flow_rate.csv",
@@ -99,12 +99,12 @@ rule simulate_particles:
         "results/{fidelity}/logs/{case}.simulate.log",
     benchmark:
         "results/{fidelity}/benchmarks/{case}.simulate.tsv"
-    threads: _threads
+    threads: PIPE.threads
     # longest first (the cost estimate): without priorities the paper level's longest case
     # (cube24_c30_re26, 13.7 min) started 30 min into the DAG, and one core idled for its last 10
-    priority: _runtime
+    priority: PIPE.runtime
     resources:
         mem_mb=3000,
-        runtime=_time_limit,
+        runtime=PIPE.time_limit,
     script:
         "../scripts/simulate_case.py"

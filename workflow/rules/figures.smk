@@ -35,10 +35,10 @@ rule combine_seeds:
     seed), the orientation histograms and velocity profile averaged, the seeds' statuses."""
     localrule: True
     input:
-        stats=_seed_files("stats.json"),
-        orientation=_seed_files("orientation.csv"),
-        profile=_seed_files("profile.csv"),
-        summary=_seed_files("summary.json"),
+        stats=PIPE.seed_files("stats.json"),
+        orientation=PIPE.seed_files("orientation.csv"),
+        profile=PIPE.seed_files("profile.csv"),
+        summary=PIPE.seed_files("summary.json"),
     output:
         stats="results/{fidelity}/cases/{case}/stats.json",
         orientation="results/{fidelity}/cases/{case}/orientation.csv",
@@ -48,7 +48,7 @@ rule combine_seeds:
         # the run-health thresholds: changing one recombines the cases (health is judged here again)
         health=config["diagnostics"]["health"],
     wildcard_constraints:
-        fidelity=_level_regex(SEEDED_LEVELS),
+        fidelity=level_regex(SEEDED_LEVELS),
         case="(cyl|cube|sphere)[^/]+",
     log:
         "results/{fidelity}/logs/{case}.combine.log",
@@ -105,8 +105,8 @@ rule snapshots:
     conda:
         "../envs/lbmpipe.yaml"
     input:
-        frames=_snapshot_files("last_frame.csv"),
-        static=_snapshot_files("particles_static.csv"),
+        frames=PIPE.snapshot_files("last_frame.csv"),
+        static=PIPE.snapshot_files("particles_static.csv"),
     output:
         [report(f"results/{{fidelity}}/figures/fig3_{case}.png", caption="../report/fig3_snapshot.rst",
                 category="Snapshots", subcategory=case) for case in PARTICLE_CASES],

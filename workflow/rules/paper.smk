@@ -18,27 +18,13 @@ rule claims:
         "../scripts/claims.py"
 
 
-def _method_inputs(wildcards):
-    # the runs of both levels the comparison pairs, where present: it reads what exists (a level's
-    # production is finished in parts) and evaluates the claims of both methods itself
-    other = comparison_level(config, wildcards.fidelity)
-    if other is None:
-        return []
-    files = []
-    for run in level_runs(config, other):
-        for lvl in (other, wildcards.fidelity):
-            files += [ancient(f) for f in (f"results/{lvl}/cases/{run}/summary.json", f"results/{lvl}/cases/{run}/stats.json")
-                      if Path(f).exists()]
-    return files
-
-
 rule method_comparison:
     """The paper's method against the accurate one (a level with `compare_with` this level): each
     accurate run paired with the paper-method run of the same packing, observable by observable,
     and each claim's verdict under both (results/<level>/method/)."""
     localrule: True
     input:
-        other=_method_inputs,
+        other=PIPE.method_inputs,
     output:
         runs="results/{fidelity}/method/runs.csv",
         claims="results/{fidelity}/method/claims.csv",
@@ -51,23 +37,13 @@ rule method_comparison:
         write_method_comparison(config, wildcards.fidelity, Path("results"), Path(output.summary).parent)
 
 
-def _convergence_inputs(wildcards):
-    # the records of the cases the refining levels share with this one, where present
-    files = []
-    for lvl in convergence_levels(config, wildcards.fidelity):
-        for case in level_cases(config, lvl):
-            files += [ancient(f) for f in (f"results/{lvl}/cases/{case}/stats.json", f"results/{lvl}/cases/{case}/profile.csv")
-                      if Path(f).exists()]
-    return files
-
-
 rule convergence:
     """The paper's observables by dx (levels with `convergence_of` this level): values with their
     intervals, the changes between spacings and the observed order where the noise lets it show
     (results/<level>/convergence/)."""
     localrule: True
     input:
-        _convergence_inputs,
+        PIPE.convergence_inputs,
     output:
         values="results/{fidelity}/convergence/values.csv",
         order="results/{fidelity}/convergence/order.csv",
@@ -89,7 +65,7 @@ rule paper:
         claims="results/{fidelity}/claims.csv",
         figures=expand("results/{{fidelity}}/figures/{fig}.png", fig=FIGURES),
         snapshots=expand("results/{{fidelity}}/figures/fig3_{case}.png", case=PARTICLE_CASES),
-        extra=paper_extra_inputs,
+        extra=PIPE.paper_extra_inputs,
         template="paper/reproduction.md.j2",
     output:
         md="paper/reproduction_{fidelity}.md",

@@ -33,7 +33,7 @@ rule study_warmup:
         "results/{fidelity}/study/warmup.json",
     log:
         "results/{fidelity}/logs/study/warmup.log",
-    threads: _study_threads
+    threads: PIPE.study_threads
     script:
         "../scripts/study_warmup.py"
 
@@ -57,7 +57,7 @@ rule study_run:
         "results/{fidelity}/logs/study/{run}.run.log",
     benchmark:
         "results/{fidelity}/study/benchmarks/{run}.tsv"
-    threads: _study_threads
+    threads: PIPE.study_threads
     resources:
         mem_mb=1500,
         runtime=10,
@@ -73,9 +73,9 @@ rule study_collect:
     input:
         # ancient: the collection reads the averaging case's trajectory when present, so on a fresh
         # clone (no trajectories, arbitrary mtimes) it must not run again unless a study run did
-        unpack(_study_case_inputs),
-        summaries=lambda wc: [ancient(f"{d}/summary.json") for d in _study_run_dirs(wc)],
-        processes=lambda wc: [ancient(f"{d}/process.json") for d in _study_run_dirs(wc)],
+        unpack(PIPE.study_case_inputs),
+        summaries=lambda wc: [ancient(f"{d}/summary.json") for d in PIPE.study_run_dirs(wc)],
+        processes=lambda wc: [ancient(f"{d}/process.json") for d in PIPE.study_run_dirs(wc)],
         benchmarks=lambda wc: [ancient(f) for f in expand("results/{fidelity}/study/benchmarks/{run}.tsv",
                                                           fidelity=wc.fidelity, run=lbm_study.run_ids(config, wc.fidelity))],
     output:

@@ -1,34 +1,19 @@
-"""The effects model: a time step is the sequence of the effects a scene declares, and nothing else.
+"""The fluid's effects of a time step: the fused stream-and-collide sweep, the wall treatments
+(half-way, interpolated and moving bounce-back) and the flow-rate controller.
 
-An effect is one piece of physics with its own cost: the fused stream-and-collide sweep (whose
-generated kernel contains exactly the collision operator and forcing the scene asks for), each wall
-treatment, a moving wall, the flow-rate controller, and, in later layers, particle coupling,
-rigid-body motion and collisions. ``assemble`` turns a scene into the ordered list; a feature that
-is absent is simply not in the list, so there is no mask and no branch for it anywhere in a step.
-
-Each effect runs in one phase of the step:
-
-* ``pre``: before the sweep, on the post-collision populations ``sim.f`` (wall and particle
-  ghost fills, which also yield the momentum exchange);
-* ``fluid``: the sweep itself, ``sim.f -> sim.f_next``;
-* ``post``: after the sweep (controllers, particle dynamics, collisions).
-
-``assemble`` decides everything about the step once: the kernel (lattice, collision operator,
-forcing, flux sum, precision, density floor), the initial force density, and the effects of each
-phase in order. The simulation times every effect separately; the summary reports seconds per
-effect. An effect with tallies of its own (mass added by the density floor, collision totals,
-mass correction) reports them through ``record()`` under its ``record_key``.
+Each is one piece of physics with its own cost (``lbmpipe.effect.Effect``); ``lbmpipe.assemble``
+puts a scene's effects in order. The sweep's generated kernel contains exactly the collision
+operator (``fluid.collision.Relaxation``) and forcing the scene asks for.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
-
 import numpy as np
 
-from .fluid import boundaries as bnd
-from .effect import Effect
-from .fluid.kernels import KernelSpec, get_kernel
+from ..effect import Effect  # noqa: F401  (fluid.effects.Effect: the base class, for callers' subclasses)
+from . import boundaries as bnd
+from .collision import Relaxation
+from .kernels import KernelSpec, get_kernel
 
 
 class StreamCollide(Effect):
@@ -48,8 +33,11 @@ class StreamCollide(Effect):
     phase = "fluid"
     record_key = "density_floor"
 
-    def __init__(self, spec: KernelSpec, rho_min: float = 0.0):
+    def __init__(self, spec: KernelSpec, relaxation: Relaxation, rho_min: float = 0.0):
+        if spec.collision is not relaxation.operator:
+            raise ValueError(f"kernel spec {spec.collision} and relaxation {relaxation.operator} disagree")
         self.spec = spec
+        self.relaxation = relaxation
         self.kernel = get_kernel(spec)
         self.name = spec.describe()
         self.rho_min = float(rho_min)
@@ -58,10 +46,11 @@ class StreamCollide(Effect):
     def __call__(self, sim) -> None:
         g = sim.grid
         fx, fy, fz = sim.force
+        r = self.relaxation
         sim.last_flux = self.kernel(
             bnd.plane_buffer(sim.f), bnd.plane_buffer(sim.f_next), g.shape[1], g.alloc_z,
             g.cols_x, g.cols_y, g.xm, g.xp, g.ym, g.yp, g.z0, g.z1, g.nzw,
-            sim.omega, sim.omega_minus, fx, fy, fz, sim.n_chunks, self.rho_min, self.tally,
+            r.omega, r.omega_minus, fx, fy, fz, sim.n_chunks, self.rho_min, self.tally,
         )
 
     def record(self) -> dict | None:
@@ -168,7 +157,10 @@ def moving_wall_deltas(links: bnd.Links, lattice, velocities: dict[str, tuple], 
 
 
 def wall_effects(grid: bnd.Grid, scheme: str, wall_velocities: dict[str, tuple]) -> list[Effect]:
-    """The wall effects a grid needs: none for a fully periodic box."""
+    """The wall effects a grid needs: none for a fully periodic box; static walls by ``scheme``
+    (a key of ``STATIC_WALLS``), walls that move by Ladd's bounce-back (``MovingWall``)."""
+    if scheme not in STATIC_WALLS:
+        raise ValueError(f"unknown wall scheme {scheme!r}: choose one of {', '.join(STATIC_WALLS)}")
     links = bnd.wall_links(grid)
     if len(links) == 0:
         return []
@@ -181,85 +173,32 @@ def wall_effects(grid: bnd.Grid, scheme: str, wall_velocities: dict[str, tuple])
             effects.append(MovingWall(_subset(links, on_moving), delta[on_moving]))
             links = _subset(links, ~on_moving)
     if len(links):
-        effects.append(WallBouzidi(links, grid.lattice.w) if scheme == "bouzidi" else WallBounceBack(links))
+        effects.append(STATIC_WALLS[scheme](links, grid.lattice))
     return effects
+
+
+#: The static wall treatments by the scene's name (``numerics.wall``): each builds its effect from
+#: the wall links and the lattice. A new wall scheme is an effect above and one entry here.
+STATIC_WALLS = {
+    "bounce_back": lambda links, lattice: WallBounceBack(links),
+    "bouzidi": lambda links, lattice: WallBouzidi(links, lattice.w),
+}
 
 
 def _subset(links: bnd.Links, sel: np.ndarray) -> bnd.Links:
     return bnd.Links(**{k: getattr(links, k)[sel] for k in links.__dataclass_fields__})
 
 
-def fluid_spec(lattice: str, collision: str, precision: str, force, flux: bool, density_floor: float | None) -> KernelSpec:
-    """The sweep's kernel: Guo forcing when there is a force or a controlled flux, the flux sum for
-    the controller, the density floor when one is asked for."""
+def fluid_spec(lattice: str, relaxation: Relaxation, precision: str, force, flux: bool,
+               density_floor: float | None) -> KernelSpec:
+    """The sweep's kernel: the relaxation's operator, Guo forcing when there is a force or a
+    controlled flux, the flux sum for the controller, the density floor when one is asked for."""
     forcing = bool(np.any(np.asarray(force) != 0.0)) or flux
-    return KernelSpec(lattice, collision, forcing, flux, precision, bool(density_floor))
+    return KernelSpec(lattice, relaxation.operator, forcing, flux, precision, bool(density_floor))
 
 
-@dataclass
-class Step:
-    """A scene's time step in its named phases, in the order they run.
-
-    ``pre``: ``walls`` then ``particle_fills`` (ghost fills and momentum exchange); ``fluid``: the
-    sweep; ``post``: ``flux_correction`` (needs the sweep's owner map), ``control`` (the flow-rate
-    controller, reading the corrected flux), ``collisions`` (on the updated particle velocities,
-    before the drift), ``motion`` (drift, then the mass correction: changes the owner map).
-    ``force`` is the initial force density (lattice units)."""
-
-    fluid: StreamCollide
-    force: np.ndarray
-    walls: list[Effect] = field(default_factory=list)
-    particle_fills: list[Effect] = field(default_factory=list)
-    flux_correction: list[Effect] = field(default_factory=list)
-    control: list[Effect] = field(default_factory=list)
-    collisions: list[Effect] = field(default_factory=list)
-    motion: list[Effect] = field(default_factory=list)
-
-    @property
-    def effects(self) -> list[Effect]:
-        return (self.walls + self.particle_fills + [self.fluid] + self.flux_correction + self.control
-                + self.collisions + self.motion)
-
-
-def collision_effect(scene, params, system):
-    """The collision effect the scene asks for (``None`` without free particles or with
-    ``particles.collisions.enabled: false``): the particles' domain in lattice units."""
-    if system is None or not len(system.free_ids) or not scene.particles.collisions.enabled:
-        return None
-    from .particles.collisions import CollisionEffect, CollisionParams, Domain
-    from .particles.placement import domain_geometry
-
-    lo, hi, periodic, radius = domain_geometry(scene, params)
-    dom = Domain.pipe(radius, hi[2] - lo[2], z0=lo[2]) if radius > 0 else Domain.box(lo, hi, periodic)
-    c = scene.particles.collisions
-    # approaches no faster than twice one step's gravity kick (lattice units, dt = 1) are loads,
-    # not impacts (collisions module docstring)
-    rest = 2.0 * float(np.linalg.norm(system.gravity))
-    return CollisionEffect(system, dom, CollisionParams(restitution=c.restitution, contact_gap=c.contact_gap_dx,
-                                                        overlap_tol=c.overlap_tol_dx, rest_speed=rest), pairs=c.pairs)
-
-
-def assemble(scene, params, grid: bnd.Grid, system=None) -> Step:
-    """The time step ``scene`` declares on ``grid`` with the particle system ``system``
-    (``coupling.ParticleSystem`` or None): exactly its effects, each decided here once."""
-    num = scene.numerics
-    walls = wall_effects(grid, num.wall, dict(params.wall_velocities_lu))
-    flux = scene.driving.kind == "flow_rate"
-    step = Step(fluid=None, force=np.array(params.accel_lu, dtype=np.float64), walls=walls)  # force density = rho_0 g
-    if system is not None:
-        from .particles.coupling import particle_effects
-
-        bouzidi = [e.links for e in walls if isinstance(e, WallBouzidi)]
-        step.particle_fills, step.flux_correction, step.motion = particle_effects(
-            system, flux_control=flux, bouzidi_links=bouzidi[0] if bouzidi else None, wall_links=[e.links for e in walls])
-    if flux:
-        ctl = FlowRateControl(params.flow_rate_lu, grid.radius, params.nu_lu, grid.shape[2], grid.n_fluid)
-        step.control = [ctl]
-        step.force = np.array([0.0, 0.0, ctl.f_ref])
-    collide = collision_effect(scene, params, system)
-    step.collisions = [collide] if collide is not None else []
-    # the density floor only where free particles can squeeze films
-    floor = num.density_floor if system is not None and len(system.free_ids) else None
-    spec = fluid_spec(grid.lattice.name, num.collision, num.precision, step.force, flux, floor)
-    step.fluid = StreamCollide(spec, floor if spec.floor else 0.0)
-    return step
+def stream_collide(lattice: str, relaxation: Relaxation, precision: str, force, flux: bool,
+                   density_floor: float | None) -> StreamCollide:
+    """The sweep for these choices (``fluid_spec``), the floor at ``density_floor`` if one is set."""
+    spec = fluid_spec(lattice, relaxation, precision, force, flux, density_floor)
+    return StreamCollide(spec, relaxation, density_floor if spec.floor else 0.0)
