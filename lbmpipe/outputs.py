@@ -159,6 +159,19 @@ def portable_path(path) -> str:
         return str(path)
 
 
+def lattice_record(params) -> dict:
+    """The derived lattice parameters as the summary's ``lattice`` block: the collision operator's
+    rates as ``omega`` and ``omega_minus`` where ``relaxation`` stands (the operator itself is the
+    scene's ``numerics.collision``), so that summaries keep one shape across versions."""
+    out = {}
+    for key, value in _jsonable(params).items():
+        if key == "relaxation":
+            out["omega"], out["omega_minus"] = float(params.omega), float(params.omega_minus)
+        else:
+            out[key] = value
+    return out
+
+
 def write_summary(out_dir: Path, summary: dict, scene, params) -> Path:
     """``summary.json``: the resolved scene, the lattice parameters, effects and timings, status.
 
@@ -174,7 +187,7 @@ def write_summary(out_dir: Path, summary: dict, scene, params) -> Path:
     part = doc.get("particles")
     if isinstance(part, dict) and isinstance(part.get("source"), str) and Path(part["source"]).is_absolute():
         doc["particles"] = dict(part, source=portable_path(part["source"]))
-    doc["lattice"] = _jsonable(params)
+    doc["lattice"] = lattice_record(params)
     doc["versions"] = versions()
     doc["git_commit"] = git_commit()
     doc["host"] = host()
