@@ -14,6 +14,7 @@ from lbmpipe.reproduction.convergence import write as write_convergence
 from lbmpipe.reproduction.literate import study_level
 from lbmpipe.reproduction.methods import comparison_level
 from lbmpipe.reproduction.methods import write as write_method_comparison
+from lbmpipe.pipeline_config import config_file_problems
 from lbmpipe.reproduction.seeds import write_combined
 from lbmpipe.reproduction.statistics import write_case_outputs
 
@@ -22,8 +23,10 @@ min_version("8.0")
 configfile: "config.yaml"
 
 
-# One line per problem and exit status 2, before any job: the schema, the level, every case's scene.
-_CONFIG_PROBLEMS = config_problems(config, Path(workflow.basedir) / CONFIG_SCHEMA)
+# One line per problem and exit status 2, before any job: the config files read strictly (Snakemake's
+# loader keeps the last of a key given twice), the schema, the level, every case's scene.
+_CONFIG_PROBLEMS = (config_file_problems(workflow.configfiles)
+                    or config_problems(config, Path(workflow.basedir) / CONFIG_SCHEMA))
 if _CONFIG_PROBLEMS:
     print("\n".join(_CONFIG_PROBLEMS), file=sys.stderr)
     sys.exit(2)
