@@ -17,12 +17,12 @@ beside its own verdict from all its packings and cases (``LEVEL_CLAIM_COLUMNS``)
 
 from __future__ import annotations
 
-import json
 import math
 from pathlib import Path
 
 import pandas as pd
 
+from ..outputs import write_json
 from .cases import level_runs
 from .health import _num as _f
 from .health import read_json as _read
@@ -202,6 +202,6 @@ def write(config: dict, paper_level: str, root: Path, out_dir: Path) -> dict:
                       title=f"What the method changes: level {paper_level} (paper) against {acc or 'no accurate level'}")
     s = {"paper_level": paper_level, "accurate_level": acc,
          "accurate_runs_planned": len(level_runs(config, acc)) if acc else 0, **summary(runs, claims)}
-    (out_dir / "summary.json").write_text(json.dumps(s, indent=2, allow_nan=True) + "\n")
+    write_json(out_dir / "summary.json", s)  # strict JSON: NaN as null
     return s
 

@@ -44,7 +44,6 @@ was exceeded (listed in ``violations``); ``unpackable`` when its packing cannot 
 from __future__ import annotations
 
 import copy
-import json
 import math
 import tempfile
 import time
@@ -53,6 +52,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..outputs import write_json
 from ..particles.collision_params import CollisionParams
 from .pipe import DENSITY_KG_M3, pipe_scene, time_step
 
@@ -445,8 +445,8 @@ def run_suite(settings: dict, out_csv: Path | None = None, cases: list[Stability
     if out_csv is not None:
         Path(out_csv).parent.mkdir(parents=True, exist_ok=True)
         df.to_csv(out_csv, index=False)
-        Path(out_csv).with_suffix(".json").write_text(json.dumps(
-            {"settings": settings, "bounds": BOUNDS, "recommendation": df.attrs["recommendation"]}, indent=2) + "\n")
+        write_json(Path(out_csv).with_suffix(".json"),
+                   {"settings": settings, "bounds": BOUNDS, "recommendation": df.attrs["recommendation"]})
     return df
 
 

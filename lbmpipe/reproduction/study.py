@@ -46,6 +46,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from ..outputs import write_json
 from .pipe import DENSITY_KG_M3, DT_PER_MM_S, FLOWS, PIPE, time_step
 from .pipe import pipe_scene as paper_pipe_scene
 from . import steady
@@ -319,7 +320,7 @@ def warm_up(config: dict, fidelity: str, out_json: Path) -> dict:
             run_scene(scene, derive(scene), Path(tmp) / sig.replace(" ", "_"), progress=False, max_steps=2)
             seconds[sig] = time.perf_counter() - t0
     Path(out_json).parent.mkdir(parents=True, exist_ok=True)
-    Path(out_json).write_text(json.dumps({"seconds": seconds}, indent=2) + "\n")
+    write_json(out_json, {"seconds": seconds})
     return seconds
 
 
@@ -365,7 +366,7 @@ def run_timed(scene_path: Path, out_dir: Path, threads: int, log_path: Path, pro
            "returncode": proc.returncode, "threads": int(threads)}
     if proc.returncode not in (0, 4):
         raise RuntimeError(f"lbmpipe run {scene_path} failed with exit status {proc.returncode}; see {log_path}")
-    Path(process_json).write_text(json.dumps(rec, indent=2) + "\n")
+    write_json(process_json, rec)
     return rec
 
 
@@ -1215,7 +1216,7 @@ def report(config: dict, fidelity: str, table: pd.DataFrame, cost_df: pd.DataFra
     rec = recommend(table, s["targets"], cost=s["cost"], model=model, case_scene=scene,
                     case_threads=int(config["fidelities"][fidelity].get("threads", 1)))
     rec["fidelity"] = fidelity
-    (out_dir / "recommendation.json").write_text(json.dumps(rec, indent=2) + "\n")
+    write_json(out_dir / "recommendation.json", rec)
     (out_dir / "recommendation.md").write_text(recommendation_markdown(rec, model))
     (out_dir / "accuracy_cost.md").write_text(f"# Accuracy against cost ({fidelity})\n\n" + markdown_table(table))
     plot_accuracy_cost(table, rec, out_dir / "accuracy_cost", title=f"accuracy against cost, fidelity {fidelity}")
