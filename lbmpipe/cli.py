@@ -431,8 +431,7 @@ def _cmd_stability(args) -> int:
 def _cmd_document(args) -> int:
     # Rebuilds only the document from the results already on disk: after a code change moves a
     # linked definition, this refreshes the links without rerunning a single case.
-    import yaml
-
+    from .pipeline_config import read_config
     from .reproduction.literate import build_checked_document
 
     root = Path(args.root).resolve()
@@ -440,7 +439,7 @@ def _cmd_document(args) -> int:
     if not fid_dir.is_dir():
         print(f"no results at {fid_dir}: run `snakemake -c2 --config fidelity={args.fidelity}` first", file=sys.stderr)
         return EXIT_FAILED
-    config = yaml.safe_load((root / "config.yaml").read_text())
+    config = read_config(root / "config.yaml")  # strict, as the Snakefile reads it; InputError: one line, exit 2
     out, stale = build_checked_document(root, args.fidelity, config)
     for problem in stale:
         print(f"stale link: {problem}", file=sys.stderr)

@@ -758,3 +758,16 @@ def test_snakemake_refuses_a_config_file_with_a_key_given_twice_before_any_job(t
     assert len(lines) == 1 and "fidelity" in lines[0] and "given twice" in lines[0] and "Fix:" in lines[0], res.stderr
     assert "Traceback" not in res.stderr
     assert (_tree(ROOT / "results") if (ROOT / "results").exists() else {}) == before
+
+
+def test_document_refuses_a_config_with_a_key_given_twice(tmp_path, capsys):
+    from lbmpipe import cli
+
+    (tmp_path / "results" / "paper").mkdir(parents=True)
+    (tmp_path / "config.yaml").write_bytes(_CONFIG_FIDELITY_TWICE)
+    with pytest.raises(SystemExit) as exc:
+        cli.main(["document", "--fidelity", "paper", "--root", str(tmp_path)])
+    assert exc.value.code == 2
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("config error in fidelity") and "given twice" in lines[0], lines
+    assert sorted(p.name for p in tmp_path.rglob("*")) == ["config.yaml", "paper", "results"]  # nothing written
