@@ -11,6 +11,7 @@ from lbmpipe.reproduction.cases import CONFIG_SCHEMA, config_problems, level_run
 from lbmpipe.reproduction.convergence import write as write_convergence
 from lbmpipe.reproduction.methods import comparison_level
 from lbmpipe.reproduction.methods import write as write_method_comparison
+from lbmpipe.pipeline_config import config_file_problems
 from lbmpipe.reproduction.seeds import write_combined
 from lbmpipe.reproduction.statistics import write_case_outputs
 from lbmpipe.reproduction import stability as lbm_stability
@@ -24,9 +25,11 @@ min_version("8.0")
 configfile: "config.yaml"
 
 
-# One line per problem and exit status 2, before any job: the schema and the levels here, every
-# case's scene below (once the schema's defaults are in, through the scenes the rules then use).
-_CONFIG_PROBLEMS = config_problems(config, Path(workflow.basedir) / CONFIG_SCHEMA, check=lambda case, level: None)
+# One line per problem and exit status 2, before any job: the config files read strictly (Snakemake's
+# loader keeps the last of a key given twice), the schema and the levels here, every case's scene
+# below (once the schema's defaults are in, through the scenes the rules then use).
+_CONFIG_PROBLEMS = (config_file_problems(workflow.configfiles)
+                    or config_problems(config, Path(workflow.basedir) / CONFIG_SCHEMA, check=lambda case, level: None))
 if _CONFIG_PROBLEMS:
     print("\n".join(_CONFIG_PROBLEMS), file=sys.stderr)
     sys.exit(2)

@@ -82,10 +82,23 @@ def find_cost_model(explicit: str | None = None) -> tuple[dict | None, str | Non
     ``explicit`` if given, else the first of ``COST_MODEL_PATHS`` under the current directory."""
     import json
 
+    if explicit and not Path(explicit).is_file():  # a named model that is not there is an error, not "no model"
+        raise InputError("--cost-model", f"{explicit} is not a file", "give the path of a cost_model.json (e.g. "
+                         f"{COST_MODEL_PATHS[0]}), or leave --cost-model out to use the first one found")
     for cand in ([explicit] if explicit else list(COST_MODEL_PATHS)):
         path = Path(cand)
         if path.is_file():
-            return json.loads(path.read_text()), str(path)
+            try:
+                model = json.loads(path.read_text(encoding="utf-8"))
+            except (OSError, UnicodeDecodeError, ValueError) as exc:
+                raise InputError("--cost-model" if explicit else str(path), f"{path} is not a readable JSON file "
+                                 f"({type(exc).__name__}: {' '.join(str(exc).split())[:120]})",
+                                 "give a cost_model.json written by the pipeline (snakemake regenerates it)") from None
+            if not isinstance(model, dict):
+                raise InputError("--cost-model" if explicit else str(path), f"{path} holds a JSON "
+                                 f"{type(model).__name__}, not a cost model (a JSON object)",
+                                 "give a cost_model.json written by the pipeline") from None
+            return model, str(path)
     return None, None
 
 
@@ -120,7 +133,7 @@ def format_report(scene: Scene, params: LatticeParams, source: str = "", cost_mo
     derived += [
         ("steps", f"{params.n_steps:,}  (spin-up {params.spinup_steps:,}, sample every {params.sample_every:,})"),
         ("estimated run time", f"{_duration(params.estimated_seconds)}  (lbmpipe.cost: {params.fluid_nodes * params.n_steps:.3g} fluid node "
-                               "updates at the reference throughput, no particles: a lower bound)"),
+                               f"updates at the reference throughput{_particles_not_counted(scene, params)})"),
         ("estimated memory", _memory_text(scene)),
     ]
     if scene.outputs.fields is not None:
@@ -133,13 +146,28 @@ def format_report(scene: Scene, params: LatticeParams, source: str = "", cost_mo
     return "\n".join(text)
 
 
+def _particles_not_counted(scene: Scene, params: LatticeParams) -> str:
+    """What the fluid-only estimate (``lbmpipe.cost``) leaves out: with particles, their coupling and
+    collisions (it counts fluid node updates only, so it is a lower bound)."""
+    if scene.particles is None:
+        return ""
+    from .fields import count_particles
+
+    n = count_particles(scene, params)
+    if n == 0:
+        return ""
+    return (f"; the {n:,} particle{'s' if n != 1 else ''}' coupling and collisions are not counted: a lower bound, "
+            "see the predicted run time")
+
+
 def _predicted_text(scene: Scene, params: LatticeParams, model: dict, path: str) -> str:
     """The cost model's wall-time prediction (``lbmpipe.cost.predict``) with the error its fit
     was validated to: a level's production runs held out by family, or the study's runs."""
     cpu = host()["cpu"]
     used, own = for_host(model, cpu)
     if "s_per_step" in used:  # fitted to a level's production runs, validated with each family held out
-        err, err_med = used.get("median_abs_rel_error", float("nan")), used.get("median_abs_rel_error_median_share", float("nan"))
+        err, err_med = (float("nan") if used.get(k) is None else float(used[k])  # null: not measured
+                        for k in ("median_abs_rel_error", "median_abs_rel_error_median_share"))
         share = float(used.get("median_cpu_share", 1.0))
         here = int((model.get("runs_by_host") or {}).get(cpu, 0))
         runs = (f"{used.get('n_validated', 0)} production runs on this processor ({cpu}) held out of the fit" if own else
@@ -362,17 +390,14 @@ def _apply_threads(scene: Scene) -> str:
 
 def _cmd_check_config(args) -> int:
     """``lbmpipe check-config CONFIG``: the checks the Snakefile makes before any job."""
-    import yaml
-
+    from lbmpipe.pipeline_config import read_config
     from lbmpipe.reproduction.cases import CONFIG_SCHEMA, config_problems
 
     path = Path(args.config)
     try:
-        text = path.read_text(encoding="utf-8")
-        config = yaml.safe_load(text)
-    except (OSError, UnicodeDecodeError, yaml.YAMLError, RecursionError) as exc:
-        print(f"config error in {path}: cannot read it ({type(exc).__name__}: {' '.join(str(exc).split())[:200]}). "
-              "Fix: give a readable UTF-8 YAML file", file=sys.stderr)
+        config = read_config(path)  # strict: a key given twice is refused, as in a scene
+    except InputError as exc:
+        print(exc.line(), file=sys.stderr)
         return EXIT_BAD_SCENE
     schema = Path(args.root) / CONFIG_SCHEMA
     problems = config_problems(config, schema)
@@ -404,8 +429,7 @@ def _cmd_stability(args) -> int:
 def _cmd_document(args) -> int:
     # Rebuilds only the document from the results already on disk: after a code change moves a
     # linked definition, this refreshes the links without rerunning a single case.
-    import yaml
-
+    from .pipeline_config import read_config
     from .reproduction.literate import build_checked_document
 
     root = Path(args.root).resolve()
@@ -413,7 +437,7 @@ def _cmd_document(args) -> int:
     if not fid_dir.is_dir():
         print(f"no results at {fid_dir}: run `snakemake -c2 --config fidelity={args.fidelity}` first", file=sys.stderr)
         return EXIT_FAILED
-    config = yaml.safe_load((root / "config.yaml").read_text())
+    config = read_config(root / "config.yaml")  # strict, as the Snakefile reads it; InputError: one line, exit 2
     out, stale = build_checked_document(root, args.fidelity, config)
     for problem in stale:
         print(f"stale link: {problem}", file=sys.stderr)
@@ -424,12 +448,20 @@ def _cmd_document(args) -> int:
 class _Parser(argparse.ArgumentParser):
     """argparse with the one-line error of every other bad input (status 2), not usage + error."""
 
-    def error(self, message: str):
+    def error(self, message: str, prog: str | None = None):
         msg = " ".join(message.split())
         where = "the command line"
         if msg.startswith("argument "):
             where, _, msg = msg[len("argument "):].partition(": ")
-        self.exit(EXIT_BAD_SCENE, f"argument error in {where}: {msg}. Fix: see `{self.prog} --help`\n")
+        self.exit(EXIT_BAD_SCENE, f"argument error in {where}: {msg}. Fix: see '{prog or self.prog} --help'\n")
+
+    def parse_args(self, args=None, namespace=None):
+        # an unknown option after a command is found by this (the top) parser: point to the command's help
+        parsed, extras = self.parse_known_args(args, namespace)
+        if extras:
+            command = getattr(parsed, "command", None)
+            self.error(f"unrecognized arguments: {' '.join(extras)}", f"{self.prog} {command}" if command else None)
+        return parsed
 
 
 def _seconds(text: str) -> float:
@@ -486,7 +518,7 @@ def build_parser() -> argparse.ArgumentParser:
                                      epilog=EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
     # the commands are listed in the description; argparse's own list would repeat them
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND", help=argparse.SUPPRESS,
-                                parser_class=_Parser)
+                                parser_class=_Parser, prog="lbmpipe")  # a command's name: `lbmpipe run`
     p_check = sub.add_parser("check", help=COMMANDS["check"][1], description=COMMANDS["check"][1])
     p_check.add_argument("scenes", nargs="+", metavar="SCENE", help="YAML scene file(s); see docs/scene.md")
     p_check.add_argument("--cost-model", default=None, metavar="JSON",

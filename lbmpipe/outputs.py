@@ -134,21 +134,45 @@ def git_commit() -> str | None:
         return None
 
 
-def _jsonable(obj):
-    if dataclasses.is_dataclass(obj):
-        return {k: _jsonable(v) for k, v in dataclasses.asdict(obj).items()}
+def jsonable(obj, non_finite: list[str] | None = None, where: str = ""):
+    """``obj`` as plain JSON values: dataclasses and dicts as objects, tuples and arrays as lists,
+    NumPy scalars as Python numbers, and NaN and +-Infinity as ``None`` (strict JSON has no such
+    numbers; readers map ``null`` back to NaN). The dotted path of each non-finite value is
+    appended to ``non_finite`` if given."""
+    if dataclasses.is_dataclass(obj) and not isinstance(obj, type):
+        obj = dataclasses.asdict(obj)
     if isinstance(obj, dict):
-        return {str(k): _jsonable(v) for k, v in obj.items()}
+        return {str(k): jsonable(v, non_finite, f"{where}.{k}" if where else str(k)) for k, v in obj.items()}
+    if isinstance(obj, np.ndarray):
+        obj = obj.tolist()
     if isinstance(obj, (list, tuple)):
-        return [_jsonable(v) for v in obj]
-    if isinstance(obj, (np.floating, float)):
-        v = float(obj)
-        return v if math.isfinite(v) else str(v)
+        return [jsonable(v, non_finite, f"{where}[{i}]") for i, v in enumerate(obj)]
+    if isinstance(obj, np.bool_):
+        return bool(obj)
     if isinstance(obj, np.integer):
         return int(obj)
-    if isinstance(obj, np.ndarray):
-        return _jsonable(obj.tolist())
+    if isinstance(obj, (np.floating, float)):
+        v = float(obj)
+        if math.isfinite(v):
+            return v
+        if non_finite is not None:
+            non_finite.append(where or "the value")
+        return None
     return obj
+
+
+def strict_json(obj, **dumps_options) -> str:
+    """``obj`` as strict JSON text (RFC 8259, what jq and browsers read): non-finite numbers as
+    ``null`` (``jsonable``), then ``json.dumps`` with ``allow_nan=False`` so that nothing else
+    can slip a ``NaN`` token through. ``dumps_options`` go to ``json.dumps`` (``indent``, ...)."""
+    return json.dumps(jsonable(obj), allow_nan=False, **dumps_options)
+
+
+def write_json(path: Path, obj, indent: int = 2) -> Path:
+    """``path`` holding ``obj`` as strict JSON (``strict_json``) and a final newline."""
+    path = Path(path)
+    path.write_text(strict_json(obj, indent=indent) + "\n")
+    return path
 
 
 def portable_path(path) -> str:
@@ -164,18 +188,21 @@ def lattice_record(params) -> dict:
     rates as ``omega`` and ``omega_minus`` where ``relaxation`` stands (the operator itself is the
     scene's ``numerics.collision``), so that summaries keep one shape across versions."""
     out = {}
-    for key, value in _jsonable(params).items():
-        if key == "relaxation":
+    for f in dataclasses.fields(params):
+        if f.name == "relaxation":
             out["omega"], out["omega_minus"] = float(params.omega), float(params.omega_minus)
         else:
-            out[key] = value
+            out[f.name] = getattr(params, f.name)
     return out
 
 
 def write_summary(out_dir: Path, summary: dict, scene, params) -> Path:
     """``summary.json``: the resolved scene, the lattice parameters, effects and timings, status.
 
-    Written to a temporary name and renamed, so a reader never sees a half-written summary.
+    Strict JSON: a value that is not finite (NaN, Infinity: a run that ended unstable) is written
+    as ``null``, and ``summary["message"]`` (in the file and in the caller's dict, which
+    ``lbmpipe run`` prints) names the values that were not finite. Written to a temporary name and
+    renamed, so a reader never sees a half-written summary.
     """
     doc = dict(summary)
     doc["scene"] = scene.model_dump(mode="json")
@@ -191,8 +218,14 @@ def write_summary(out_dir: Path, summary: dict, scene, params) -> Path:
     doc["versions"] = versions()
     doc["git_commit"] = git_commit()
     doc["host"] = host()
+    non_finite: list[str] = []
+    doc = jsonable(doc, non_finite)
+    if non_finite:
+        shown = ", ".join(non_finite[:8]) + (f" and {len(non_finite) - 8} more" if len(non_finite) > 8 else "")
+        note = f"Not finite, written as null in {SUMMARY}: {shown}."
+        summary["message"] = doc["message"] = " ".join(filter(None, [summary.get("message") or "", note]))
     path = Path(out_dir) / SUMMARY
     tmp = path.with_suffix(".json.tmp")
-    tmp.write_text(json.dumps(_jsonable(doc), indent=2, sort_keys=False) + "\n")
+    tmp.write_text(json.dumps(doc, indent=2, sort_keys=False, allow_nan=False) + "\n")
     tmp.replace(path)
     return path

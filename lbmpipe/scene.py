@@ -663,14 +663,24 @@ class _UniqueKeyLoader(yaml.SafeLoader):
 
 
 def _construct_mapping(loader: yaml.SafeLoader, node: yaml.MappingNode, deep: bool = False):
-    loader.flatten_mapping(node)
+    # the mapping's own keys only: a key that overrides one merged in by `<<: *anchor` is YAML's
+    # way to change one entry of a copied mapping, not a key given twice
     seen: dict[Any, Any] = {}
     for key_node, _ in node.value:
+        if key_node.tag == "tag:yaml.org,2002:merge":
+            continue
+        if isinstance(key_node, yaml.CollectionNode):  # `? [a, b] : 1`: a list or mapping as a key
+            mark = key_node.start_mark
+            kind = "list" if isinstance(key_node, yaml.SequenceNode) else "mapping"
+            raise SceneError(getattr(loader, "where", "the YAML"),
+                             f"the key at line {mark.line + 1}, column {mark.column + 1} is a {kind}, not a name",
+                             "write the key as a plain name (`? [a, b]` makes a list the key)")
         key = loader.construct_object(key_node, deep=deep)
         if key in seen:
             line = key_node.start_mark.line + 1
             raise SceneError(str(key), f"key {key!r} is given twice in one mapping (line {line})", "keep only one of them")
         seen[key] = True
+    loader.flatten_mapping(node)
     return loader.construct_mapping(node, deep=deep)
 
 
@@ -721,6 +731,7 @@ def _bounded_yaml(text: str, where: str):
         elif isinstance(ev, yaml.CollectionEndEvent):
             depth -= 1
     loader = _UniqueKeyLoader(text)
+    loader.where = where  # named by the errors of the key constructor
     try:
         node = loader.get_single_node()
         if node is None:
@@ -751,23 +762,31 @@ def _bounded_yaml(text: str, where: str):
         loader.dispose()
 
 
-def load_scene(path: str | Path) -> Scene:
-    """Read and validate a YAML scene file; raises SceneError."""
-    path = Path(path)
-    text = _read_scene_text(path)
+def parse_strict_yaml(text: str, where: str):
+    """The YAML document in ``text`` as Python objects, read strictly: a key given twice, a list
+    or mapping as a key, nesting deeper than ``MAX_YAML_DEPTH`` or more than ``MAX_YAML_NODES``
+    values (aliases expanded) raise SceneError, as does invalid YAML (``where`` names the file in
+    those messages; a key given twice is named by the key). Used for scenes and for the
+    pipeline's config (``lbmpipe.pipeline_config``)."""
     try:
-        data = _bounded_yaml(text, str(path))
+        return _bounded_yaml(text, where)
     except yaml.YAMLError as exc:
-        raise SceneError(str(path), f"not valid YAML: {' '.join(str(exc).split())}",
+        raise SceneError(where, f"not valid YAML: {' '.join(str(exc).split())}",
                          "fix the YAML syntax at the position shown") from None
     except SceneError:
         raise
     except ValueError as exc:  # e.g. an integer of more than 4,300 digits
-        raise SceneError(str(path), f"cannot read a value ({' '.join(str(exc).split())[:120]})",
+        raise SceneError(where, f"cannot read a value ({' '.join(str(exc).split())[:120]})",
                          "give plain numbers and strings") from None
     except (RecursionError, MemoryError):  # a bound above was not enough: still one line
-        raise SceneError(str(path), "the YAML is too deeply nested or too large to read",
-                         "write the scene as a plain mapping of a few levels") from None
+        raise SceneError(where, "the YAML is too deeply nested or too large to read",
+                         "write it as a plain mapping of a few levels") from None
+
+
+def load_scene(path: str | Path) -> Scene:
+    """Read and validate a YAML scene file; raises SceneError."""
+    path = Path(path)
+    data = parse_strict_yaml(_read_scene_text(path), str(path))
     if not isinstance(data, dict):
         raise SceneError(str(path), f"the file must hold a YAML mapping, got {type(data).__name__}",
                          f"write the scene as `name: ...`, `domain: ...`, ... ; {DOCS_PATH}")

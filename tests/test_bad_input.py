@@ -47,11 +47,13 @@ def _limits():
     resource.setrlimit(resource.RLIMIT_CORE, (0, 0))
 
 
-def _cli(args, cwd, env_extra=None, timeout=TIMEOUT):
+def _cli(args, cwd, env_extra=None, timeout=TIMEOUT, limits=True):
+    """``lbmpipe ARGS`` in a subprocess, under the address-space limit unless ``limits`` is False
+    (a run that compiles the particle kernels from a cold numba cache needs more)."""
     env = {**os.environ, "NUMBA_NUM_THREADS": "1", **(env_extra or {})}
     env.pop("LBMPIPE_TRACEBACK", None)
     return subprocess.run([sys.executable, "-m", "lbmpipe", *map(str, args)], cwd=cwd, env=env, capture_output=True,
-                          text=True, timeout=timeout, preexec_fn=_limits)
+                          text=True, timeout=timeout, preexec_fn=_limits if limits else None)
 
 
 def _tree(root: Path, skip: Path | None = None) -> dict:
@@ -143,6 +145,8 @@ SCENE_CASES = [
     Case("yaml_syntax_error", _raw("name: [unclosed\n"), 2, "scene.yaml", ("not valid YAML",)),
     Case("top_level_list", _raw("- a\n- b\n"), 2, "scene.yaml", ("mapping",)),
     Case("key_given_twice", _raw(_GOOD + "name: again\n"), 2, "name", ("given twice",)),
+    Case("list_as_a_mapping_key", _raw(_GOOD + "fluid_extra:\n  ? [a, b]\n  : 1\n"), 2, "scene.yaml",
+         ("line 20, column 5 is a list",)),
     Case("integer_of_5000_digits", _raw(_GOOD.replace("duration_s: 0.05", "duration_s: " + "9" * 5000)), 2,
          "scene.yaml", ("cannot read a value",)),
     Case("name_of_100000_characters", _scene(_with(PIPE, name="x y" * 50_000)), 2, "name", ("characters",)),
@@ -207,6 +211,15 @@ def _run_args(*extra, scene=PIPE):
     return setup
 
 
+def _check_with_cost_model(content: bytes | None):
+    def setup(tmp):
+        model = tmp / "cost_model.json"
+        if content is not None:
+            model.write_bytes(content)
+        return ["check", _scene_file(tmp, PIPE), "--cost-model", model]
+    return setup
+
+
 ARG_CASES = [
     Case("checkpoint_every_nan", _run_args("--checkpoint", "c.npz", "--checkpoint-every-s", "nan"), 2,
          "--checkpoint-every-s", ("'nan'",), prefix="argument error in"),
@@ -222,7 +235,13 @@ ARG_CASES = [
          prefix="argument error in"),
     Case("no_command", lambda tmp: [], 2, "the command line", prefix="argument error in"),
     Case("empty_out", lambda tmp: ["run", _scene_file(tmp, PIPE), "--out", ""], 2, "--out",
+         ("Fix: see 'lbmpipe run --help'",), prefix="argument error in"),
+    Case("cost_model_not_json", _check_with_cost_model(b'{"s_per_step": 1e-3,'), 2, "--cost-model",
+         ("not a readable JSON file",), prefix="argument error in"),
+    Case("cost_model_a_json_list", _check_with_cost_model(b"[1, 2]"), 2, "--cost-model", ("not a cost model",),
          prefix="argument error in"),
+    Case("cost_model_path_that_does_not_exist", _check_with_cost_model(None), 2, "--cost-model",
+         ("is not a file",), prefix="argument error in"),
 ]
 
 
@@ -332,6 +351,9 @@ def _config(mutate=None, raw: bytes | None = None):
     return setup
 
 
+#: the committed config with `fidelity:` on two lines (lines 5 and 6): YAML alone keeps the last
+_CONFIG_FIDELITY_TWICE = (ROOT / "config.yaml").read_bytes().replace(b"\nfidelity:", b"\nfidelity: smoke\nfidelity:", 1)
+
 CONFIG_CASES = [
     Case("config_fidelity_not_defined", _config(lambda c: c.update(fidelity="bogus")), 2, "fidelity",
          ("'bogus'",), prefix="config error in"),
@@ -347,6 +369,8 @@ CONFIG_CASES = [
     Case("config_not_utf8", _config(raw=b"fidelity: sm\xf6ke\n"), 2, "config.yaml", ("cannot read",),
          prefix="config error in"),
     Case("config_a_list", _config(raw=b"- a\n- b\n"), 2, "the config file", ("mapping",), prefix="config error in"),
+    Case("config_key_given_twice", _config(raw=_CONFIG_FIDELITY_TWICE), 2, "fidelity", ("given twice", "line 6"),
+         prefix="config error in"),
 ]
 
 ALL = SCENE_CASES + ARG_CASES + FILE_CASES + CONFIG_CASES
@@ -621,3 +645,129 @@ def test_guard_names_the_density_floor_when_it_has_added_much_of_the_fluid_mass(
         sim.guard.check(sim)
     assert "density floor has added 50 % of the fluid mass" in err.value.cause
     assert "contact_gap_dx" in err.value.fix
+
+
+# -- the hint after an argument error names the command's own help ---------------------------------
+
+@pytest.mark.parametrize("command", ["", "check", "run", "check-config", "stability", "document"])
+def test_an_unknown_option_points_to_the_help_of_its_own_command(command, capsys):
+    from lbmpipe import cli
+
+    assert set(cli.COMMANDS) <= {"check", "run", "check-config", "stability", "document"}  # every command below
+    with pytest.raises(SystemExit) as exc:
+        cli.main([*([command] if command else []), "--no-such-option"])
+    assert exc.value.code == 2
+    line = capsys.readouterr().err.strip()
+    assert line.startswith("argument error in ") and line.count("\n") == 0, line
+    assert line.endswith(f"Fix: see '{' '.join(['lbmpipe', *([command] if command else [])])} --help'"), line
+
+
+# -- the time estimate of a scene with particles says what it leaves out ------------------------------
+
+def test_check_of_a_scene_with_21_particles_does_not_call_it_particle_free():
+    from lbmpipe.cli import format_report
+    from lbmpipe.scene import Scene
+    from lbmpipe.units import derive
+
+    with_particles = Scene.model_validate(_with(PIPE, particles={"random": [
+        {"shape": "sphere", "diameter_mm": 2.5, "count": 20}], "bodies": [
+        {"shape": "sphere", "diameter_mm": 2.5, "position_mm": [0, 0, 10]}]}))
+    row = next(ln for ln in format_report(with_particles, derive(with_particles)).splitlines()
+               if "estimated run time" in ln)
+    assert "no particles" not in row and "the 21 particles' coupling and collisions are not counted" in row, row
+    flow = Scene.model_validate(PIPE)
+    row = next(ln for ln in format_report(flow, derive(flow)).splitlines() if "estimated run time" in ln)
+    assert "particle" not in row, row
+
+
+# -- strict JSON: no NaN or Infinity token in any file the package writes ---------------------------
+
+def _strict_loads(text: str):
+    def refuse(token):
+        raise ValueError(f"{token} is not JSON")
+    return json.loads(text, parse_constant=refuse)
+
+
+def test_strict_json_writes_non_finite_numbers_as_null_and_names_them():
+    from lbmpipe.outputs import jsonable, strict_json
+
+    doc = {"a": float("nan"), "b": [1.0, np.float32(np.inf)], "c": {"d": -np.inf, "e": np.int64(3)},
+           "f": np.array([0.5, np.nan])}
+    bad: list[str] = []
+    assert jsonable(doc, bad) == {"a": None, "b": [1.0, None], "c": {"d": None, "e": 3}, "f": [0.5, None]}
+    assert bad == ["a", "b[1]", "c.d", "f[1]"]
+    assert _strict_loads(strict_json(doc)) == {"a": None, "b": [1.0, None], "c": {"d": None, "e": 3},
+                                                "f": [0.5, None]}
+
+
+def test_an_unstable_run_writes_a_strict_json_summary_and_names_the_values_that_were_not_finite(tmp_path):
+    """A heavy sphere under 1e5 m/s^2 toward the wall: the density goes non-finite within a few
+    steps and the mass drift with it."""
+    heavy = _with(PIPE, particles={"bodies": [{"shape": "sphere", "diameter_mm": 6.0, "position_mm": [0, 0, 10],
+                                               "density_ratio": 10.0}], "gravity_m_s2": [1.0e5, 0.0, 0.0]})
+    res = _cli(["run", _scene_file(tmp_path, heavy), "--out", tmp_path / "out", "--quiet", "--steps", "40"],
+               cwd=tmp_path, timeout=1800, limits=False)
+    assert res.returncode == 4, res.stderr
+    summary = _strict_loads((tmp_path / "out" / "summary.json").read_text())
+    assert summary["status"] == "unstable" and summary["mass_drift_rel"] is None
+    assert "Not finite, written as null in summary.json: mass_drift_rel" in summary["message"]
+    assert "mass_drift_rel" in res.stderr  # the run's message says it too
+
+
+def test_every_committed_json_file_under_results_is_strict_json():
+    """summary.json, stats.json and every other JSON file the pipeline committed: no NaN, Infinity."""
+    files = sorted((ROOT / "results").rglob("*.json"))
+    assert any(f.name == "summary.json" for f in files) and any(f.name == "stats.json" for f in files)
+    bad = []
+    for f in files:
+        try:
+            _strict_loads(f.read_text())
+        except ValueError as exc:
+            bad.append(f"{f.relative_to(ROOT)}: {exc}")
+    assert not bad, "\n".join(bad[:20])
+
+
+# -- the pipeline's config is read as strictly as a scene --------------------------------------------
+
+def test_a_key_that_overrides_a_merged_anchor_is_not_a_key_given_twice():
+    """config.yaml's levels copy the credible level (`<<: *credible`) and change one entry."""
+    from lbmpipe.errors import SceneError
+    from lbmpipe.scene import parse_strict_yaml
+
+    assert parse_strict_yaml("a: &x {p: 1, q: 2}\nb:\n  <<: *x\n  q: 3\n", "f.yaml") == \
+        {"a": {"p": 1, "q": 2}, "b": {"p": 1, "q": 3}}
+    with pytest.raises(SceneError, match="given twice"):
+        parse_strict_yaml("a: &x {p: 1}\nb:\n  <<: *x\n  q: 3\n  q: 4\n", "f.yaml")
+
+
+def test_check_config_accepts_the_committed_config():
+    res = _cli(["check-config", ROOT / "config.yaml", "--root", ROOT], cwd=ROOT)
+    assert res.returncode == 0 and "valid" in res.stdout, res.stderr
+
+
+def test_snakemake_refuses_a_config_file_with_a_key_given_twice_before_any_job(tmp_path):
+    if shutil.which("snakemake", path=str(Path(sys.executable).parent)) is None:
+        pytest.skip("snakemake not installed beside this interpreter")
+    cfg = tmp_path / "config.yaml"
+    cfg.write_bytes(_CONFIG_FIDELITY_TWICE)
+    before = _tree(ROOT / "results") if (ROOT / "results").exists() else {}
+    res = subprocess.run([str(Path(sys.executable).parent / "snakemake"), "-n", "--configfile", str(cfg)],
+                         cwd=ROOT, capture_output=True, text=True, timeout=300)
+    assert res.returncode != 0
+    lines = [ln for ln in res.stderr.splitlines() if "config error in" in ln]
+    assert len(lines) == 1 and "fidelity" in lines[0] and "given twice" in lines[0] and "Fix:" in lines[0], res.stderr
+    assert "Traceback" not in res.stderr
+    assert (_tree(ROOT / "results") if (ROOT / "results").exists() else {}) == before
+
+
+def test_document_refuses_a_config_with_a_key_given_twice(tmp_path, capsys):
+    from lbmpipe import cli
+
+    (tmp_path / "results" / "paper").mkdir(parents=True)
+    (tmp_path / "config.yaml").write_bytes(_CONFIG_FIDELITY_TWICE)
+    with pytest.raises(SystemExit) as exc:
+        cli.main(["document", "--fidelity", "paper", "--root", str(tmp_path)])
+    assert exc.value.code == 2
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("config error in fidelity") and "given twice" in lines[0], lines
+    assert sorted(p.name for p in tmp_path.rglob("*")) == ["config.yaml", "paper", "results"]  # nothing written

@@ -23,6 +23,7 @@ import pandas as pd
 import yaml
 
 from ..cost import predict
+from ..outputs import write_json
 from ..particles.packing import count_for_concentration
 from ..particles.placement import PACKING_COLUMNS, PARQUET_COLUMNS, STATIC_COLUMNS, packed_group, write_packing
 from ..particles.shapes import make_shape
@@ -184,7 +185,7 @@ def pack_case(config: dict, pid: str, out_csv: Path, out_json: Path) -> dict:
     else:
         info = {"status": "packed", "packing": pid, **info}
         write_packing(Path(out_csv), x, q)
-    Path(out_json).write_text(json.dumps(info, indent=2) + "\n")
+    write_json(out_json, info)
     return info
 
 
@@ -202,7 +203,7 @@ def write_unpackable(case_dir: Path, case_name: str, packing_info: dict) -> None
                                                              "count", "seed", "message")},
                "particles": {"count": 0, "concentration_target": packing_info.get("concentration_target"),
                              "concentration_achieved": packing_info.get("concentration_reached")}}
-    (case_dir / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
+    write_json(case_dir / "summary.json", summary)
     pd.DataFrame(columns=list(PARQUET_COLUMNS), dtype="float64").to_parquet(case_dir / "particles.parquet", index=False)
     (case_dir / "particles_static.csv").write_text(",".join(STATIC_COLUMNS) + "\n")
     (case_dir / "profile.csv").write_text("r_mm,uz_m_s,uz_poiseuille_m_s,nodes\n")

@@ -18,7 +18,6 @@ per simulated second of that case (``tables/runtime.csv``, summed over its seeds
 
 from __future__ import annotations
 
-import json
 import math
 from pathlib import Path
 
@@ -26,6 +25,7 @@ import numpy as np
 import pandas as pd
 from scipy import stats as _st
 
+from ..outputs import write_json
 from .cases import level_cases
 from .comparison_figures import convergence_accuracy_cost
 from .methods import completed_record, stats_values
@@ -182,5 +182,5 @@ def write(config: dict, base: str, root: Path, out_dir: Path) -> dict:
          "cases": sorted(vals["case"].unique().tolist()) if len(vals) else [],
          "observed": int((order["status"] == "observed").sum()) if len(order) else 0,
          "compared": int(len(order))}
-    (out_dir / "summary.json").write_text(json.dumps(s, indent=2) + "\n")
+    write_json(out_dir / "summary.json", s)
     return s

@@ -19,7 +19,7 @@ from . import figures, health
 from .cases import FLOWS, case_scene, level_runs
 from .convergence import levels
 from .equations import EQUATION_GROUPS, EQUATIONS, N_EQUATIONS, equation_index, equation_link, relative_href
-from .health import read_json
+from .health import _num, read_json  # _num: a null (an error not measured) as NaN
 from .methods import comparison_level
 from .runcost import UNRECORDED
 from .steady import steady_corrected
@@ -272,10 +272,10 @@ def runtime_section(fid_dir: Path, fidelity: str) -> dict:
     if model is not None and model.get("n_runs"):
         sec["model"] = {"formula": model.get("formula", ""), "n_runs": fmt(model.get("n_runs")),
                         "families": fmt(model.get("families")), "n_validated": fmt(model.get("n_validated")),
-                        "median_pct": fmt(100 * float(model.get("median_abs_rel_error", float("nan")))),
-                        "max_pct": fmt(100 * float(model.get("max_abs_rel_error", float("nan")))),
-                        "median_share_pct": fmt(100 * float(model.get("median_abs_rel_error_median_share", float("nan")))),
-                        "max_share_pct": fmt(100 * float(model.get("max_abs_rel_error_median_share", float("nan")))),
+                        "median_pct": fmt(100 * _num(model.get("median_abs_rel_error"))),
+                        "max_pct": fmt(100 * _num(model.get("max_abs_rel_error"))),
+                        "median_share_pct": fmt(100 * _num(model.get("median_abs_rel_error_median_share"))),
+                        "max_share_pct": fmt(100 * _num(model.get("max_abs_rel_error_median_share"))),
                         "share": fmt(model.get("median_cpu_share")),
                         "ns_node": fmt(1e9 * model.get("s_per_node_update", 0.0)),
                         "ns_link": fmt(1e9 * model.get("s_per_link_update", 0.0)),
@@ -284,9 +284,8 @@ def runtime_section(fid_dir: Path, fidelity: str) -> dict:
                         "hosts": [{"cpu": cpu, "n_runs": fmt(h.get("n_runs")), "families": fmt(h.get("families")),
                                    "n_validated": fmt(h.get("n_validated")),
                                    "ns_node": fmt(1e9 * h.get("s_per_node_update", 0.0)),
-                                   "median_pct": fmt(100 * float(h.get("median_abs_rel_error", float("nan")))),
-                                   "median_share_pct": fmt(100 * float(h.get("median_abs_rel_error_median_share",
-                                                                             float("nan"))))}
+                                   "median_pct": fmt(100 * _num(h.get("median_abs_rel_error"))),
+                                   "median_share_pct": fmt(100 * _num(h.get("median_abs_rel_error_median_share")))}
                                   for cpu, h in sorted((model.get("hosts") or {}).items())],
                         "unrecorded": fmt((model.get("runs_by_host") or {}).get(UNRECORDED, 0)),
                         "table": table_of(val, ["run", "family", "host", "steps", "particles", "links", "wall_s",
@@ -331,7 +330,7 @@ def method_comparison_section(fid_dir: Path, fidelity: str, config: dict, out_di
     runs = read_table(mdir / "runs.csv")
     claims = read_table(Path(fid_dir) / "claims.csv")  # the level's verdicts with both methods' seed-1 ones
     done, _ = _runs_done(config, other, Path(fid_dir).parent)
-    flows = [{"run": f["run"], "paper_pct": fmt(100 * f["paper"]), "accurate_pct": fmt(100 * f["accurate"])}
+    flows = [{"run": f["run"], "paper_pct": fmt(100 * _num(f["paper"])), "accurate_pct": fmt(100 * _num(f["accurate"]))}
              for f in summ.get("flows", [])]
     compared = (claims["same_under_both_methods"] != "not compared"
                 if claims is not None and "same_under_both_methods" in claims else None)
@@ -341,7 +340,7 @@ def method_comparison_section(fid_dir: Path, fidelity: str, config: dict, out_di
             "figure": figure,
             "pairs": summ.get("pairs", 0), "omega_compared": summ.get("omega_compared", 0),
             "omega_significant": summ.get("omega_significant", 0),
-            "omega_median_pct": fmt(100 * float(summ.get("omega_median_abs_rel_diff", float("nan")))),
+            "omega_median_pct": fmt(100 * _num(summ.get("omega_median_abs_rel_diff"))),
             "angle_compared": summ.get("angle_compared", 0), "angle_significant": summ.get("angle_significant", 0),
             "flows": flows, "claims_compared": summ.get("claims_compared", 0),
             "claims_changed": ", ".join(str(c) for c in summ.get("claims_changed", [])) or "none",

@@ -17,7 +17,6 @@ beside its own verdict from all its packings and cases (``claims.LEVEL_CLAIM_COL
 
 from __future__ import annotations
 
-import json
 import math
 import shutil
 import tempfile
@@ -25,6 +24,7 @@ from pathlib import Path
 
 import pandas as pd
 
+from ..outputs import write_json
 from .cases import level_cases, level_runs
 from .claims import evaluate_claims
 from .comparison_figures import method_comparison
@@ -193,6 +193,6 @@ def write(config: dict, paper_level: str, root: Path, out_dir: Path) -> dict:
                       title=f"What the method changes: level {paper_level} (paper) against {acc or 'no accurate level'}")
     s = {"paper_level": paper_level, "accurate_level": acc,
          "accurate_runs_planned": len(level_runs(config, acc)) if acc else 0, **summary(runs, claims)}
-    (out_dir / "summary.json").write_text(json.dumps(s, indent=2, allow_nan=True) + "\n")
+    write_json(out_dir / "summary.json", s)  # strict JSON: NaN as null
     return s
 

@@ -65,6 +65,7 @@ import numpy as np
 import pandas as pd
 
 from ..cost import D3Q15_LINKS_PER_AREA, particle_area_volume, predict_work
+from ..outputs import write_json
 
 #: effect-name prefixes of each group of the step (``solver`` names its effects this way)
 GROUPS = {"fluid": ("stream+collide", "wall", "flow-rate"), "particles": ("particles",), "collisions": ("collisions",)}
@@ -245,7 +246,7 @@ def write(level_dir: Path, runs: list[str], level: str, model_path: Path, table_
     """:func:`build` and write ``cost_model.json`` and ``cost_validation.csv``."""
     model, val = build(level_dir, runs, level)
     Path(model_path).parent.mkdir(parents=True, exist_ok=True)
-    Path(model_path).write_text(json.dumps(model, indent=2, allow_nan=True) + "\n")
+    write_json(model_path, model)  # strict JSON: an error not measured is null
     val.to_csv(table_path, index=False, float_format="%.6g")
     return model
 

@@ -223,7 +223,7 @@ def write_combined(case: str, case_dir: Path, seeds, config: dict | None = None)
     dirs = _seed_dirs(case_dir, seeds)
     limits = H.thresholds(config)["health"]
     stats = combine_stats(case, [(k, H.refresh_health(H.read_json(d / "stats.json"), d, limits)) for k, d in dirs])
-    (case_dir / "stats.json").write_text(json.dumps(_jsonable(stats), indent=2) + "\n")
+    (case_dir / "stats.json").write_text(json.dumps(_jsonable(stats), indent=2, allow_nan=False) + "\n")
 
     def _csv(p: Path):
         try:
@@ -234,6 +234,6 @@ def write_combined(case: str, case_dir: Path, seeds, config: dict | None = None)
     combine_orientation([_csv(d / "orientation.csv") for _, d in dirs]).to_csv(case_dir / "orientation.csv", index=False)
     combine_profiles([_csv(d / "profile.csv") for _, d in dirs]).to_csv(case_dir / "profile.csv", index=False)
     summary = combine_summaries(case, [(k, H.read_json(d / "summary.json")) for k, d in dirs])
-    (case_dir / "summary.json").write_text(json.dumps(_jsonable(summary), indent=2) + "\n")
+    (case_dir / "summary.json").write_text(json.dumps(_jsonable(summary), indent=2, allow_nan=False) + "\n")
     return stats
 

@@ -44,7 +44,6 @@ was exceeded (listed in ``violations``); ``unpackable`` when its packing cannot 
 from __future__ import annotations
 
 import copy
-import json
 import math
 import tempfile
 import time
@@ -55,6 +54,7 @@ import numba
 import numpy as np
 
 from ..fluid import observables as obs
+from ..outputs import write_json
 from ..particles.collision_params import CollisionParams
 from ..particles.contact import contact_pipe
 from ..particles.placement import packed_group, write_packing
@@ -441,8 +441,8 @@ def run_suite(settings: dict, out_csv: Path | None = None, cases: list[Stability
     if out_csv is not None:
         Path(out_csv).parent.mkdir(parents=True, exist_ok=True)
         df.to_csv(out_csv, index=False)
-        Path(out_csv).with_suffix(".json").write_text(json.dumps(
-            {"settings": settings, "bounds": BOUNDS, "recommendation": df.attrs["recommendation"]}, indent=2) + "\n")
+        write_json(Path(out_csv).with_suffix(".json"),
+                   {"settings": settings, "bounds": BOUNDS, "recommendation": df.attrs["recommendation"]})
     return df
 
 

@@ -500,7 +500,7 @@ def write_case_outputs(case: str, case_dir: Path, case_cfg: dict, config: dict |
             f"{case} need it; rerun the case (snakemake --forcerun simulate_particles <its summary.json>) or keep "
             "its committed stats.json")
     s = case_statistics(case, case_dir, case_cfg, config=config)
-    (case_dir / "stats.json").write_text(json.dumps(_jsonable(s), indent=2) + "\n")
+    (case_dir / "stats.json").write_text(json.dumps(_jsonable(s), indent=2, allow_nan=False) + "\n")
     spin = s["spinup_s"] if s["spinup_s"] is not None and np.isfinite(s["spinup_s"]) else 0.0
     tau_o = (s.get("orientation_memory") or {}).get("tau_orient_s")
     orientation_histograms(case_dir, s["shape"], spin, status=s["status"], tau_s=tau_o).to_csv(

@@ -11,7 +11,6 @@ finds each reference's Pareto front and the cheapest setting meeting its target
 from __future__ import annotations
 
 import copy
-import json
 import math
 from pathlib import Path
 
@@ -20,6 +19,7 @@ import pandas as pd
 from matplotlib import ticker
 
 from ..cost import scene_work
+from ..outputs import write_json
 from ..scene import Scene
 from ..units import derive
 from .cases import case_scene
@@ -428,7 +428,7 @@ def report(config: dict, fidelity: str, table: pd.DataFrame, cost_df: pd.DataFra
     rec = recommend(table, s["targets"], cost=s["cost"], model=model, case_scene=scene,
                     case_threads=int(config["fidelities"][fidelity].get("threads", 1)))
     rec["fidelity"] = fidelity
-    (out_dir / "recommendation.json").write_text(json.dumps(rec, indent=2) + "\n")
+    write_json(out_dir / "recommendation.json", rec)
     (out_dir / "recommendation.md").write_text(recommendation_markdown(rec, model))
     (out_dir / "accuracy_cost.md").write_text(f"# Accuracy against cost ({fidelity})\n\n" + markdown_table(table))
     plot_accuracy_cost(table, rec, out_dir / "accuracy_cost", title=f"accuracy against cost, fidelity {fidelity}")

@@ -43,7 +43,6 @@ recommends a setting and writes the reports.
 from __future__ import annotations
 
 import copy
-import json
 import math
 import os
 import resource
@@ -56,6 +55,7 @@ from pathlib import Path
 import numpy as np
 import yaml
 
+from ..outputs import write_json
 from ..scene import Scene
 from ..run import run_scene
 from ..units import derive
@@ -327,7 +327,7 @@ def warm_up(config: dict, fidelity: str, out_json: Path) -> dict:
             run_scene(scene, derive(scene), Path(tmp) / sig.replace(" ", "_"), progress=False, max_steps=2)
             seconds[sig] = time.perf_counter() - t0
     Path(out_json).parent.mkdir(parents=True, exist_ok=True)
-    Path(out_json).write_text(json.dumps({"seconds": seconds}, indent=2) + "\n")
+    write_json(out_json, {"seconds": seconds})
     return seconds
 
 
@@ -362,5 +362,5 @@ def run_timed(scene_path: Path, out_dir: Path, threads: int, log_path: Path, pro
            "returncode": proc.returncode, "threads": int(threads)}
     if proc.returncode not in (0, 4):
         raise RuntimeError(f"lbmpipe run {scene_path} failed with exit status {proc.returncode}; see {log_path}")
-    Path(process_json).write_text(json.dumps(rec, indent=2) + "\n")
+    write_json(process_json, rec)
     return rec

@@ -1,7 +1,7 @@
-import json
 import sys
 from pathlib import Path
 
+from lbmpipe.outputs import strict_json, write_json
 from lbmpipe.reproduction.study import collect
 
 sys.stdout = sys.stderr = open(snakemake.log[0], "w")
@@ -9,6 +9,6 @@ root = Path(snakemake.output.table).parents[2]  # results/
 table, cost_runs, model = collect(snakemake.config, snakemake.wildcards.fidelity, root)
 table.to_csv(snakemake.output.table, index=False)
 cost_runs.to_csv(snakemake.output.runs, index=False)
-Path(snakemake.output.model).write_text(json.dumps(model, indent=2) + "\n")
+write_json(snakemake.output.model, model)
 print(table[["reference", "knob", "setting", "error", "wall_s"]].to_string())
-print(json.dumps(model, indent=2))
+print(strict_json(model, indent=2))
