@@ -14,9 +14,13 @@ import math
 import sys
 from pathlib import Path
 
+from lbmpipe.checkpoint import CheckpointError, read_head, scene_fingerprint
 from lbmpipe.cost import for_host, predict
-from lbmpipe.inputs import InputError, check_memory, format_bytes, memory_estimate
-from lbmpipe.outputs import host
+from lbmpipe.fields import bytes_per_sample, count_particles, memory_per_sample, sample_count
+from lbmpipe.inputs import (InputError, available_memory, check_checkpoint_path, check_memory, check_writable_dir,
+                            format_bytes, memory_estimate, out_dir_owner)
+from lbmpipe.outputs import host, portable_path
+from lbmpipe.pipeline_config import read_config
 from lbmpipe.scene import Scene, SceneError, load_scene
 from lbmpipe.units import LatticeParams, derive
 
@@ -151,7 +155,6 @@ def _particles_not_counted(scene: Scene, params: LatticeParams) -> str:
     collisions (it counts fluid node updates only, so it is a lower bound)."""
     if scene.particles is None:
         return ""
-    from .fields import count_particles
 
     n = count_particles(scene, params)
     if n == 0:
@@ -203,7 +206,6 @@ def format_closing_summary(summary: dict, out: Path | str) -> str:
 
 
 def _memory_text(scene: Scene) -> str:
-    from lbmpipe.inputs import available_memory
 
     est = memory_estimate(scene)
     avail, source = available_memory()
@@ -213,7 +215,6 @@ def _memory_text(scene: Scene) -> str:
 
 def _field_output_size(scene: Scene, params: LatticeParams) -> str:
     """Disk (and memory) per field sample and for the run (``lbmpipe.fields``)."""
-    from .fields import bytes_per_sample, count_particles, memory_per_sample, sample_count
 
     lat, parts = bytes_per_sample(scene, params)
     n = sample_count(scene, params)
@@ -262,7 +263,6 @@ def _cmd_run(args) -> int:
         print(exc.line(), file=sys.stderr)
         return EXIT_BAD_SCENE
     if resuming:  # a bad or foreign checkpoint is refused before the simulation is built
-        from lbmpipe.checkpoint import CheckpointError, read_head, scene_fingerprint
 
         try:
             read_head(Path(args.checkpoint), scene_fingerprint(scene))
@@ -276,7 +276,8 @@ def _cmd_run(args) -> int:
         print(format_report(scene, params, args.scene))
         print(f"\nwriting to {out}")
     try:
-        from lbmpipe.run import run_scene  # lazy: keeps `check` fast and free of numba compilation
+        # heavy: the solver stack (every kernel module); `check` and `--help` never need it
+        from lbmpipe.run import run_scene
     except ImportError as exc:
         print(f"the solver is not available: {exc}", file=sys.stderr)
         return EXIT_FAILED
@@ -287,7 +288,6 @@ def _cmd_run(args) -> int:
                   "keep_checkpoint": args.keep_checkpoint}
         if resuming and not args.quiet:
             print(f"resuming from the checkpoint {args.checkpoint}")
-    from lbmpipe.checkpoint import CheckpointError
 
     try:
         summary = run_scene(scene, params, out, progress=not args.quiet, max_steps=args.steps, **kwargs)
@@ -329,7 +329,6 @@ def _check_out_owner(out: Path, scene: Scene, force: bool, resuming: bool) -> in
     finished run of this scene without --force (unless resuming its interrupted run), or any run
     of another scene (name and fingerprint of its summary.json), even when a checkpoint of this
     scene is resumed; else 0."""
-    from lbmpipe.inputs import out_dir_owner
 
     owner = out_dir_owner(out) if out.is_dir() else None
     if owner is None or force:
@@ -350,8 +349,6 @@ def _check_out_owner(out: Path, scene: Scene, force: bool, resuming: bool) -> in
 def _summary_fingerprint(scene: Scene) -> str:
     """Fingerprint of the scene as ``outputs.write_summary`` records it (packing files named from
     the working directory), to compare with a summary.json's."""
-    from lbmpipe.checkpoint import scene_fingerprint
-    from lbmpipe.outputs import portable_path
 
     doc = scene.model_dump(mode="json")
     for g in (doc.get("particles") or {}).get("packed") or []:
@@ -363,7 +360,6 @@ def _summary_fingerprint(scene: Scene) -> str:
 def _prepare_paths(out: Path, args) -> None:
     """--out is a folder we can write in (created now, before the first step) and --checkpoint a
     file path in a writable folder; InputError otherwise."""
-    from lbmpipe.inputs import check_checkpoint_path, check_writable_dir
 
     check_writable_dir(out, "--out")
     if args.checkpoint is not None:
@@ -390,7 +386,7 @@ def _apply_threads(scene: Scene) -> str:
 
 def _cmd_check_config(args) -> int:
     """``lbmpipe check-config CONFIG``: the checks the Snakefile makes before any job."""
-    from lbmpipe.pipeline_config import read_config
+    # heavy: the reproduction layer (pandas, matplotlib, jsonschema), for this subcommand only
     from lbmpipe.reproduction.cases import CONFIG_SCHEMA, config_problems
 
     path = Path(args.config)
@@ -409,6 +405,7 @@ def _cmd_check_config(args) -> int:
 
 
 def _cmd_stability(args) -> int:
+    # heavy: the reproduction layer (pandas, matplotlib), for this subcommand only
     from lbmpipe.reproduction import stability
 
     cases = stability.suite()
@@ -429,7 +426,7 @@ def _cmd_stability(args) -> int:
 def _cmd_document(args) -> int:
     # Rebuilds only the document from the results already on disk: after a code change moves a
     # linked definition, this refreshes the links without rerunning a single case.
-    from .pipeline_config import read_config
+    # heavy: the reproduction layer (pandas, matplotlib, jinja2), for this subcommand only
     from .reproduction.literate import build_checked_document
 
     root = Path(args.root).resolve()

@@ -30,6 +30,9 @@ from pathlib import Path
 
 import numpy as np
 
+from .particles.rigid import quat_to_matrices
+from .particles.shapes import bounding_radius
+
 SUBDIR = "fields"
 SERIES = "fields.pvd"
 #: bytes per node of each field (float32 vectors and scalars, uint8 mask)
@@ -188,9 +191,6 @@ class FieldWriter:
 
     def particle_arrays(self, sim) -> dict[str, np.ndarray | tuple]:
         """Point arrays of the particles (physical units), and ``points`` (x, y, z) in mm."""
-        from .particles.rigid import quat_to_matrices
-        from .particles.shapes import bounding_radius
-
         ps, u = sim.particles, self.units
         b = ps.bodies
         mm = u.dx_m * 1e3

@@ -18,6 +18,8 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from . import __version__
+
 SUMMARY = "summary.json"
 
 
@@ -99,8 +101,6 @@ def write_profile(out_dir: Path, r, u, u_ref, count, units) -> str:
 def versions() -> dict:
     import numba
     import scipy
-
-    from . import __version__
 
     return {"lbmpipe": __version__, "python": platform.python_version(), "numpy": np.__version__,
             "numba": numba.__version__, "scipy": scipy.__version__, "pandas": pd.__version__}

@@ -12,6 +12,7 @@ from pathlib import Path
 
 from lbmpipe.errors import SceneError
 from lbmpipe.inputs import InputError
+from lbmpipe.scene import parse_strict_yaml
 
 #: a config is a few kilobytes; far larger is not one (and is not read into memory)
 MAX_CONFIG_BYTES = 1_000_000
@@ -22,8 +23,6 @@ def read_config(path: str | Path) -> dict:
     key or the file) if it cannot be read, is not UTF-8 YAML, gives a key twice or uses a list or
     mapping as a key. Whether it holds a mapping and what the schema says is ``config_problems``'
     business (``lbmpipe.reproduction.cases``)."""
-    from lbmpipe.scene import parse_strict_yaml
-
     path = Path(path)
     try:
         size = path.stat().st_size
