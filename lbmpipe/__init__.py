@@ -37,7 +37,7 @@ def _numba_cache_by_source() -> None:
     ``NUMBA_CACHE_DIR`` is set.
 
     Why: numba invalidates a cached function when *its own* source file changes, not when a
-    function it inlines from another module does. ``collisions.py`` compiles the contact
+    function it inlines from another module does. ``particles/collisions/`` compiles the contact
     package's GJK (``particles/contact/``) into its own functions, and the contact modules inline
     each other's helpers, so after an edit of the GJK the cached collision step would keep
     running the old one, silently (it happened while timing a change to the contact code).

@@ -249,7 +249,7 @@ class PackedParticles(_Model):
 
 class Collisions(_Model):
     """Particle-particle and particle-wall collisions: the paper's instantaneous impulses,
-    Eqs. (16)-(21), with overlap removal (`lbmpipe/particles/collisions.py`). Lengths are in lattice
+    Eqs. (16)-(21), with overlap removal (`lbmpipe/particles/collisions/`). Lengths are in lattice
     spacings because they are numerical tolerances of the discrete step."""
 
     enabled: bool = Field(True, description="Resolve collisions. `false` lets particles pass through each other and the wall "

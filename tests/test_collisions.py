@@ -10,6 +10,8 @@ import numpy as np
 import pytest
 
 from lbmpipe.particles.collisions import CollisionParams, Domain, NeighbourList, resolve_collisions
+from lbmpipe.particles.collisions.jam import _lock_jams
+from lbmpipe.particles.collisions.narrow_phase import _narrow_phase
 from lbmpipe.particles.contact import contact_pair, contact_pipe
 from lbmpipe.particles.rigid import Bodies, drift, quat_from_axis_angle, quat_to_matrix, random_quaternions
 from lbmpipe.particles.shapes import CUBE, CYLINDER, SPHERE
@@ -485,7 +487,6 @@ def test_narrow_phase_gives_exact_touching_contacts_and_lower_bounds_beyond_the_
     # The collision step computes exact geometry only where it is used (gap <= contact_gap);
     # wider pair gaps and wall gaps far from reach may be lower bounds. Everything else in the
     # step relies on exactly this: equal bits at or below contact_gap, never above the true gap.
-    from lbmpipe.particles import collisions as C
     from lbmpipe.particles.contact import bounding_radii, candidate_pairs
     from lbmpipe.particles.rigid import quat_to_matrices
 
@@ -504,12 +505,12 @@ def test_narrow_phase_gives_exact_touching_contacts_and_lower_bounds_beyond_the_
     # each pair's exact cylinder candidate of the step before goes first (the list slot's hint):
     # a second pass with the hints the first one learnt must give the same bits
     pk, lwin = np.arange(npair), np.full(npair, -1, dtype=np.int8)
-    C._narrow_phase(b.kind, b.h, b.x, Rm, rb, pi, pj, ps, pk, lwin, gap_c, 0.1, cg, cn, cc, dcode, Rp, cx, cy, lo, hi,
-                    periodic, margin, reach, use, sg, sn, sc)
+    _narrow_phase(b.kind, b.h, b.x, Rm, rb, pi, pj, ps, pk, lwin, gap_c, 0.1, cg, cn, cc, dcode, Rp, cx, cy, lo, hi,
+                  periodic, margin, reach, use, sg, sn, sc)
     assert (lwin >= 0).sum() > 10
     again = np.empty(npair), np.empty((npair, 3)), np.empty((npair, 3))
-    C._narrow_phase(b.kind, b.h, b.x, Rm, rb, pi, pj, ps, pk, lwin, gap_c, 0.1, *again, dcode, Rp, cx, cy, lo, hi,
-                    periodic, margin, reach, use.copy(), sg.copy(), sn.copy(), sc.copy())
+    _narrow_phase(b.kind, b.h, b.x, Rm, rb, pi, pj, ps, pk, lwin, gap_c, 0.1, *again, dcode, Rp, cx, cy, lo, hi,
+                  periodic, margin, reach, use.copy(), sg.copy(), sn.copy(), sc.copy())
     for a, c in zip((cg, cn, cc), again):
         np.testing.assert_array_equal(a, c)
     kinds_touching = set()
@@ -668,8 +669,6 @@ def test_a_locked_jam_keeps_its_momentum_and_angular_momentum_and_makes_no_energ
     # Two spinning cubes jammed face to face, left approaching by the sweeps: locked, they move on
     # as one rigid body with the pair's linear and angular momentum, so their contact no longer
     # approaches; with a wall in the jam they stop.
-    from lbmpipe.particles.collisions import _lock_jams
-
     rng = np.random.default_rng(5)
     b = Bodies.make(CUBE, [1.0, 1.0, 1.0], 1.0, [[0.0, 0.0, 0.0], [2.0, 0.1, -0.2]],
                     q=random_quaternions(2, rng), v=0.05 * rng.standard_normal((2, 3)), wb=0.05 * rng.standard_normal((2, 3)))

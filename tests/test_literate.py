@@ -55,7 +55,7 @@ def test_equations_cited_in_subpackages_are_indexed_with_their_paths(index, tmp_
     # the fluid, particle and reproduction layers live in subpackages: Eq. (7) (the lattice) and
     # Eqs. (16)-(21) (collisions) are cited there only
     assert any(r.module == "lbmpipe/fluid/lattice.py" for r in index[7])
-    assert any(r.module == "lbmpipe/particles/collisions.py" for r in index[16])
+    assert any(r.module == "lbmpipe/particles/collisions/impulse.py" for r in index[16])
     pkg = tmp_path / "lbmpipe"
     (pkg / "deep" / "deeper").mkdir(parents=True)
     (pkg / "deep" / "deeper" / "m.py").write_text('def f():\n    """Implements Eq. (3)."""\n')

@@ -40,8 +40,8 @@ def test_an_edit_of_any_module_gives_numba_a_fresh_cache_folder(tmp_path):
 
 
 def test_an_edit_of_a_module_in_a_subpackage_gives_numba_a_fresh_cache_folder(tmp_path):
-    # collisions.py compiles the contact package's GJK into its own functions: they live in
-    # lbmpipe/particles/ and lbmpipe/particles/contact/, two folders deep
+    # particles/collisions/ compiles the contact package's GJK into its own functions: they live in
+    # lbmpipe/particles/collisions/ and lbmpipe/particles/contact/, two folders deep
     copy = tmp_path / "src"
     shutil.copytree(PACKAGE, copy / "lbmpipe", ignore=shutil.ignore_patterns("__pycache__"))
     home = tmp_path / "cache"

@@ -12,7 +12,7 @@ import numpy as np
 PIPE = 0
 BOX = 1
 
-#: Overlaps at any time stay within this many ``overlap_tol`` (module docstring: the overlap bound
+#: Overlaps at any time stay within this many ``overlap_tol`` (``collisions.step``: the overlap bound
 #: and its sources); the run-time guard stops a run beyond it (``lbmpipe.guard``).
 OVERLAP_BOUND_FACTOR = 10.0
 
@@ -83,9 +83,9 @@ class CollisionParams:
     - ``contact_gap``: a signed gap at or below this counts as contact (the fluid cannot resolve
       gaps below a lattice spacing, so the bounce happens at this sub-grid separation).
     - ``speculative``: also treat as contacts the pairs that would overlap after a free step of
-      ``dt`` at the current velocities (module docstring).
+      ``dt`` at the current velocities (``collisions.toi``).
     - ``overlap_tol``: largest overlap left after the call; ``overlap_bound`` (``OVERLAP_BOUND_FACTOR``
-      times it) bounds the overlaps at any time (module docstring).
+      times it) bounds the overlaps at any time (``collisions.step``).
     - ``manifold_tol``: flatness tolerance of the contact-patch centroid (``lbmpipe.particles.contact``).
     - ``skin``: extra broad-phase margin; also the displacement budget of the projection before
       the pair list is rebuilt.
@@ -98,8 +98,8 @@ class CollisionParams:
       started after 10-20, was done in about 6: 9-11 ms against 1.2-2.7 ms a step.
     - ``list_skin``: extra margin of the Verlet list kept over calls (``NeighbourList``): it is
       rebuilt once a body has moved by half of it. Only the cost depends on it, not the result.
-    - ``rest_speed``: approach speeds at or below it are loads, taken up with ``k = 0`` (module
-      docstring: impacts and loads).
+    - ``rest_speed``: approach speeds at or below it are loads, taken up with ``k = 0``
+      (``collisions.impulse``: impacts and loads).
     """
 
     restitution: float = 1.0
@@ -128,13 +128,13 @@ class CollisionParams:
 
     @property
     def overlap_bound(self) -> float:
-        """Largest overlap at any time, before or after a call (module docstring)."""
+        """Largest overlap at any time, before or after a call (``collisions.step``)."""
         return OVERLAP_BOUND_FACTOR * self.overlap_tol
 
 
 def min_periodic_length(rb_max, contact_gap, skin):
     """Shortest periodic length in which the pair search over bodies of bounding radius up to
     ``rb_max`` meets no pair twice: two interaction ranges ``2 (2 rb_max + contact_gap + skin)``
-    (lattice units). The one rule both the run (``_resolve_kernel``) and ``lbmpipe check``
+    (lattice units). The one rule both the run (``collisions.step._periodic_status``) and ``lbmpipe check``
     (``lbmpipe.inputs.pair_rule_errors``) apply."""
     return 2.0 * (2.0 * rb_max + contact_gap + skin)

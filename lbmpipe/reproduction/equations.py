@@ -218,8 +218,8 @@ KEY_EQUATIONS: list[tuple[tuple[int, ...], str, str, str, str, int]] = [
     ((9, 10, 11, 12), "lbmpipe/particles/coupling.py", "fixed_fill", "fixed_fill", r"fx_ \+= 2\.0 \* ex \* sf", 6),
     ((13,), "lbmpipe/particles/rigid.py", "kick_angular_arrays", "kick_angular_arrays", r"tb = _rot\(", 4),
     ((14, 15), "lbmpipe/particles/rigid.py", "drift", "_free_rotate", r"ch = math\.cos\(0\.5", 6),
-    ((19,), "lbmpipe/particles/collisions.py", "_gs_sweep", "_gs_sweep", r"vn = _normal_velocity\(i,", 6),
-    ((21,), "lbmpipe/particles/collisions.py", "_wall_terms", "_wall_terms", r"a10, a11, a12, t1 = _body_terms", 6),
+    ((19,), "lbmpipe/particles/collisions/impulse.py", "_gs_sweep", "_gs_sweep", r"vn = _normal_velocity\(i,", 6),
+    ((21,), "lbmpipe/particles/collisions/impulse.py", "_wall_terms", "_wall_terms", r"a10, a11, a12, t1 = _body_terms", 6),
 ]
 
 

@@ -72,7 +72,7 @@ BOUNDS = {
     # first step, whose covering and uncovering shift it by up to ~2e-3 at 50 % (measured).
     "mass_drift_rel_particles": 5e-3,
     "ke_ratio_max": 3.0,  # kinetic energy / Hagen-Poiseuille's at the target Q
-    # collisions.py: overlaps are <= overlap_tol right after the collision step and within the
+    # particles/collisions: overlaps are <= overlap_tol right after the collision step and within the
     # model's overlap bound (OVERLAP_BOUND_FACTOR * overlap_tol) between calls
     "overlap_before_lu": CollisionParams().overlap_bound,
     "wall_clearance_min_lu": -0.1,
