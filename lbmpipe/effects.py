@@ -250,8 +250,9 @@ def assemble(scene, params, grid: bnd.Grid, system=None) -> Step:
         from .particles.coupling import particle_effects
 
         bouzidi = [e.links for e in walls if isinstance(e, WallBouzidi)]
-        step.particle_fills, step.flux_correction, step.motion = particle_effects(
-            system, flux_control=flux, bouzidi_links=bouzidi[0] if bouzidi else None, wall_links=[e.links for e in walls])
+        phases = particle_effects(system, flux_control=flux, bouzidi_links=bouzidi[0] if bouzidi else None,
+                                  wall_links=[e.links for e in walls])
+        step.particle_fills, step.flux_correction, step.motion = phases.pre, phases.before_control, phases.after_control
     if flux:
         ctl = FlowRateControl(params.flow_rate_lu, grid.radius, params.nu_lu, grid.shape[2], grid.n_fluid)
         step.control = [ctl]
