@@ -150,7 +150,9 @@ def set_owners(n, nodes, news, owner, x, G, L):
 
 @njit(cache=True)
 def clear_changed(chg, chg_list, nchg):
-    """Unmark the nodes marked since the last link passes (all of them if the list overflowed)."""
+    """Unmark the nodes marked since the last link passes (all of them if the list overflowed):
+    ``chg`` (nodes,) uint8, ``chg_list`` and ``nchg`` (1,) as in ``LinkLists``. Call it after the
+    step's last link pass, never between the passes (they test only marked links)."""
     n = nchg[0]
     if n > chg_list.shape[0]:
         chg[:] = 0

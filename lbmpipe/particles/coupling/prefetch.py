@@ -21,7 +21,10 @@ PREFETCH_AHEAD = 16
 def prefetch(typingctx, arr, i, j, write):
     """Hint the cache to fetch ``arr[i, j]`` (for writing if the literal ``write`` is 1); no effect
     on results. The link passes are bound by the latency of scattered accesses to ``f``, and a
-    hint issued a few links ahead keeps more of them in flight than the out-of-order window."""
+    hint issued a few links ahead keeps more of them in flight than the out-of-order window.
+
+    Inputs: ``arr`` a 2-D array, ``i``, ``j`` integer indices (not bounds-checked: a prefetch of
+    any address is harmless), ``write`` the literal 0 or 1. Output: none (locality hint 3, data)."""
     rw = int(getattr(write, "literal_value", 0))
     sig = types.void(arr, i, j, write)
 

@@ -87,7 +87,12 @@ def _disc(px, py, dx, dy, r, t0, t1):
 @njit(cache=True)
 def ray_interval(kind, h, px, py, pz, dx, dy, dz):
     """Interval ``[t0, t1]`` of ``t`` with the body-frame point ``p + t d`` inside the closed
-    shape (``t0 > t1``: the line misses it)."""
+    shape (``t0 > t1``: the line misses it).
+
+    Inputs: ``kind`` (``shapes.SPHERE``, ``CYLINDER`` or a cube), ``h`` (3,) half-extents (sphere:
+    ``h[0]`` the radius; cylinder: radius ``h[0]``, half-length ``h[2]``), ``p`` a body-frame
+    point and ``d`` a unit body-frame direction, lattice units. Exact up to round-off (ray-slab,
+    ray-disc, ray-sphere)."""
     big = 1e300
     if kind == SPHERE:
         # |p + t d|^2 <= r^2 with |d| = 1
