@@ -27,7 +27,6 @@ totals, mass correction) reports them through ``record()`` under its ``record_ke
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from types import SimpleNamespace
 
 import numpy as np
 
@@ -94,8 +93,6 @@ def assemble(scene, params, grid: bnd.Grid, system=None) -> Step:
         bouzidi = [e.links for e in walls if isinstance(e, WallBouzidi)]
         phases = particle_effects(system, flux_control=flux, bouzidi_links=bouzidi[0] if bouzidi else None,
                                   wall_links=[e.links for e in walls])
-        if not hasattr(phases, "before_control"):  # a plain triple until coupling's named ParticlePhases lands
-            phases = SimpleNamespace(pre=phases[0], before_control=phases[1], after_control=phases[2])
         step.particle_fills, step.flux_correction, step.motion = phases.pre, phases.before_control, phases.after_control
     if flux:
         ctl = FlowRateControl(params.flow_rate_lu, grid.radius, params.nu_lu, grid.shape[2], grid.n_fluid)

@@ -269,7 +269,7 @@ class Collisions(_Model):
 
 class Particles(_Model):
     """Rigid particles coupled to the fluid (Ladd's moving bounce-back, Eqs. (8)-(12)); see
-    `lbmpipe/particles/coupling.py`. Bodies are numbered in order: `bodies` first, then each `random`
+    `lbmpipe/particles/coupling/`. Bodies are numbered in order: `bodies` first, then each `random`
     group, then the `packed` group."""
 
     bodies: list[ParticleBody] = Field(default_factory=list, description="Explicitly placed particles.")

@@ -215,7 +215,7 @@ def check_links(md_path: Path, repo_root: Path) -> list[str]:
 KEY_EQUATIONS: list[tuple[tuple[int, ...], str, str, str, str, int]] = [
     ((8,), "lbmpipe/fluid/boundaries.py", "fill_moving_bounce_back", "fill_moving_bounce_back",
      r"for k in prange", 2),
-    ((9, 10, 11, 12), "lbmpipe/particles/coupling.py", "fixed_fill", "fixed_fill", r"fx_ \+= 2\.0 \* ex \* sf", 6),
+    ((9, 10, 11, 12), "lbmpipe/particles/coupling/ladd.py", "fixed_fill", "fixed_fill", r"fx_ \+= 2\.0 \* ex \* sf", 6),
     ((13,), "lbmpipe/particles/rigid.py", "kick_angular_arrays", "kick_angular_arrays", r"tb = _rot\(", 4),
     ((14, 15), "lbmpipe/particles/rigid.py", "drift", "_free_rotate", r"ch = math\.cos\(0\.5", 6),
     ((19,), "lbmpipe/particles/collisions/impulse.py", "_gs_sweep", "_gs_sweep", r"vn = _normal_velocity\(i,", 6),

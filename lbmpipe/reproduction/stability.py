@@ -68,7 +68,7 @@ from .pipe import DENSITY_KG_M3, pipe_scene, time_step
 BOUNDS = {
     "mass_drift_rel": 1e-9,  # particle-free: total fluid mass (round-off over the run)
     # with particles: mean fluid density against the start. Ladd's remap loses mass systematically
-    # (coupling.py); MassCorrection restores the mean density every 25 steps to its value after the
+    # (particles/coupling); MassCorrection restores the mean density every 25 steps to its value after the
     # first step, whose covering and uncovering shift it by up to ~2e-3 at 50 % (measured).
     "mass_drift_rel_particles": 5e-3,
     "ke_ratio_max": 3.0,  # kinetic energy / Hagen-Poiseuille's at the target Q
