@@ -39,7 +39,8 @@ Reported (medians over the rounds):
 Issue 45's targets (one core, float64) are printed beside: step/sweep at most 2.0 for
 ``cyl8x8_c30``, 2.5 for ``cube8_c50``, 1.6 for ``cube16_c30``; acc/paper at most 1.3.
 
-Run (about 6 minutes on one core of the 2-core AMD EPYC host with the defaults):
+Run (with the defaults: 10 s of warm-up and 46 s of rounds on one core of the 2-core AMD EPYC host
+with numba's cache warm; a cold compile adds about 2.5 minutes to the warm-up):
 
     python benchmarks/step.py [--cases cyl8x8_c30_re26 cube8_c50_re26 cube16_c30_re26] [--seed 1]
         [--level credible] [--methods paper accurate] [--steps 100] [--warmup 100] [--repeats 5]
