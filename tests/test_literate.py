@@ -270,3 +270,17 @@ def test_the_document_of_an_accurate_method_level_builds_and_names_the_level_it_
     assert "## What the method changes" in text and f"`results/{paper_level}/method/`" in text
     assert "### The paired runs of the method comparison" not in text
     assert equations.check_links(out, REPO) == []
+
+
+def test_claims_summary_counts_missing_and_flagged_cases_not_the_clauses_of_their_flags():
+    """A reason lists its missing cases, then its flagged cases with their flags seed by seed
+    (``"; "`` inside parentheses too): the summary counts cases, one each, not clauses."""
+    from lbmpipe.reproduction.literate import _short_reason, claims_summary
+
+    reason = ("the pooled 95 % interval excludes 0; missing: a_re26: status unstable (seed 3: unstable); "
+              "flagged cases: b_re9.4: unhealthy (seed 1: mass 0.02 > 0.01; seed 2: mass 0.03 > 0.01); "
+              "b_re9.4: not steady (seed 1: x: halves differ by 0.1 > 0.05); c_re26: frozen (0.6 > 0.5)")
+    assert _short_reason(reason) == ("the pooled 95 % interval excludes 0", 1, 2)
+    rows = claims_summary(pd.DataFrame([{"claim": 1, "statement": "s", "verdict": "reproduced",
+                                         "values": "pooled D = 1", "reason": reason}]))
+    assert rows[0]["reason"] == "the pooled 95 % interval excludes 0 (1 case missing; 2 cases flagged)"

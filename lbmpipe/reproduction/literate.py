@@ -89,14 +89,40 @@ def averaging_s(summary: dict | None, stats: dict | None) -> float:
     return float(summary.get("simulated_seconds", float("nan"))) - float(spin or 0.0)
 
 
-def _short_reason(reason: str) -> tuple[str, int]:
-    """A claim's reason without its list of missing cases, and how many cases are missing."""
-    parts = str(reason).split("; ")
-    idx = next((k for k, p in enumerate(parts) if p.startswith("missing:")), len(parts))
-    text = "; ".join(parts[:idx])
+def _clauses(text: str) -> list[str]:
+    """``text`` cut at its top-level ``"; "``: a clause's own parentheses (a case's flags seed by
+    seed, ``(seed 1: ...; seed 2: ...)``) stay whole."""
+    parts, depth, start = [], 0, 0
+    for k, ch in enumerate(text):
+        if ch == "(":
+            depth += 1
+        elif ch == ")":
+            depth = max(0, depth - 1)
+        elif ch == ";" and depth == 0 and text[k + 1:k + 2] == " ":
+            parts.append(text[start:k])
+            start = k + 2
+    parts.append(text[start:])
+    return parts
+
+
+def _short_reason(reason: str) -> tuple[str, int, int]:
+    """A claim's reason without its lists of missing and flagged cases (``claims``: ``<reason>;
+    missing: <case>: <why>; ...; flagged cases: <case>: <flag> (<seeds>); ...``), and how many
+    distinct cases each list names."""
+    lead, named = [], {"missing": set(), "flagged": set()}
+    section = None
+    for part in _clauses(str(reason)):
+        for key, head in (("missing", "missing: "), ("flagged", "flagged cases: ")):
+            if part.startswith(head):
+                section, part = key, part[len(head):]
+        if section is None:
+            lead.append(part)
+        else:
+            named[section].add(part.split(":", 1)[0].strip())
+    text = "; ".join(lead)
     if len(text) > 160:  # e.g. a list of bins per case: the appendix has it all
         text = text[:160].rsplit(",", 1)[0] + " … (appendix)"
-    return text, len(parts) - idx
+    return text, len(named["missing"]), len(named["flagged"])
 
 
 def _method_cell(r: dict) -> str:
@@ -114,9 +140,11 @@ def claims_summary(claims) -> list[dict]:
     ``values``: the pooled difference or the single comparison) and the reason, shortened."""
     rows = []
     for r in claims.to_dict("records"):
-        reason, n_missing = _short_reason(r.get("reason", ""))
-        if n_missing:
-            reason += f" ({n_missing} case{'s' if n_missing > 1 else ''} missing)"
+        reason, n_missing, n_flagged = _short_reason(r.get("reason", ""))
+        counts = [f"{n} case{'s' if n > 1 else ''} {what}" for n, what in ((n_missing, "missing"),
+                                                                             (n_flagged, "flagged")) if n]
+        if counts:
+            reason += f" ({'; '.join(counts)})"
         rows.append({"claim": fmt(r["claim"]), "statement": str(r.get("statement", "")),
                      "verdict": str(r.get("verdict", "")),
                      "number": str(r.get("values", "")).split("; ")[0].split(" over ")[0],
