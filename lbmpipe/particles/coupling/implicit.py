@@ -27,13 +27,6 @@ update to ``V(t+1)`` -> ghost fill with ``V(t+1)``; fluid sweep; ``post``: the t
 carries the gyroscopic term and keeps ``|q| = 1``), then the remap. The kick is the implicit
 angular-momentum update ``L' = L + T dt`` in the lab frame at the current orientation (Eq. (13)'s
 torque term), the drift the rest: first order in time, like the link coupling itself.
-
-Time step (``dt = 1``): ``pre``: ``F0, T0, Z`` from ``f*(t)`` on the links at ``X(t)`` -> implicit
-update to ``V(t+1)`` -> ghost fill with ``V(t+1)``; fluid sweep; ``post``: the torque-free motion
-``rigid.drift_arrays`` over one step (``x += v``, the exact free rotation of Eqs. (13)-(15) that
-carries the gyroscopic term and keeps ``|q| = 1``), then the remap. The kick is the implicit
-angular-momentum update ``L' = L + T dt`` in the lab frame at the current orientation (Eq. (13)'s
-torque term), the drift the rest: first order in time, like the link coupling itself.
 """
 
 from __future__ import annotations
