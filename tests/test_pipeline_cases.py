@@ -2,6 +2,7 @@
 mass correction and the flow-rate controller with particles."""
 
 import copy
+from pathlib import Path
 import json
 
 import numpy as np
@@ -255,3 +256,21 @@ def test_config_schema_rejects_a_misspelt_study_or_stability_key():
         bad[section][level][key] = 1
         with pytest.raises(Exception, match="config"):
             validate(bad, schema)
+
+
+def test_a_production_run_refuses_a_source_tree_with_uncommitted_changes(monkeypatch):
+    # the committed results must name a commit whose code ran them
+    monkeypatch.setattr(cases, "git_commit", lambda: "abc123-dirty")
+    with pytest.raises(cases.DirtyTreeError, match="allow_dirty=true"):
+        cases.require_clean_tree(production=True, allow_dirty=False)
+    rec = cases.require_clean_tree(production=True, allow_dirty=True)  # an experiment: let through, recorded
+    assert rec == {"git_commit": "abc123-dirty", "production": True, "dirty": True, "allow_dirty": True}
+    assert cases.require_clean_tree(production=False, allow_dirty=False)["dirty"] is True  # smoke, tests
+    monkeypatch.setattr(cases, "git_commit", lambda: "abc123")
+    assert cases.require_clean_tree(production=True, allow_dirty=True)["allow_dirty"] is False
+
+
+def test_the_committed_levels_are_production_levels():
+    cfg = yaml.safe_load((Path(__file__).resolve().parents[1] / "config.yaml").read_text())
+    assert all(cfg["fidelities"][k].get("production") for k in ("paper", "credible", "credible_accurate"))
+    assert not cfg["fidelities"]["smoke"].get("production")

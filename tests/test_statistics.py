@@ -10,6 +10,7 @@ import pytest
 from scipy.signal import lfilter
 
 from lbmpipe.reproduction import health, steady
+from lbmpipe.reproduction import series as SR
 from lbmpipe.reproduction import statistics as S
 from lbmpipe.particles.rigid import quat_from_axis_angle, quat_mul, rotate
 
@@ -28,9 +29,11 @@ def _ar1(phi, n, reps, mean, rng):
     return mean + lfilter([1.0], [1.0, -phi], e, axis=1)
 
 
-def write_case(case_dir, t, omega, q=None, spinup_s=0.3, status="completed", shape="cylinder", summary_extra=None):
+def write_case(case_dir, t, omega, q=None, spinup_s=0.3, status="completed", shape="cylinder", summary_extra=None,
+               flow=True):
     """A synthetic case directory: ``omega`` (T, N, 3) rad/s at times ``t`` (T,), quaternions
-    ``q`` (T, N, 4) (identity if None)."""
+    ``q`` (T, N, 4) (identity if None); with ``flow``, a steady ``flow_rate.csv`` sampled at the
+    times after t = 0 (a run samples its particles at t = 0 and its flow one interval later)."""
     case_dir.mkdir(parents=True, exist_ok=True)
     T, N, _ = omega.shape
     if q is None:
@@ -58,6 +61,11 @@ def write_case(case_dir, t, omega, q=None, spinup_s=0.3, status="completed", sha
     summary.update(summary_extra or {})
     (case_dir / "summary.json").write_text(json.dumps(summary))
     (case_dir / "profile.csv").write_text("r_mm,uz_m_s,uz_poiseuille_m_s,nodes\n1.0,0.1,0.1,4\n")
+    if flow:
+        tf = np.asarray(t, float)[np.asarray(t, float) > 0]
+        pd.DataFrame({"t_s": tf, "q_m3_s": 1e-4, "force_density_N_m3": 700.0 + 0.1 * np.sin(tf),
+                      "max_density_deviation": 0.01, "core_velocity_ratio": 1.6 + 0.01 * np.cos(tf)}).to_csv(
+            case_dir / "flow_rate.csv", index=False)
 
 
 CYL_CFG = {"reynolds": 26, "particles": {"shape": "cylinder", "diameter_mm": 16, "length_mm": 16,
@@ -154,7 +162,7 @@ def test_mean_abs_omega_is_mean_over_particles_and_samples_after_spinup_with_mea
     assert s["samples"] == 6 and s["spinup_s"] == 0.3 and s["status"] == "completed"
     for k, a in enumerate("xyz"):
         hand = np.abs(omega[keep, :, k]).mean()
-        assert s["mean_abs_omega_rad_s"][a] == pytest.approx(hand, rel=1e-12)
+        assert s["mean_abs_omega_rad_s"][a] == pytest.approx(hand, rel=1e-8)  # the series keeps 9 digits
         series = np.abs(omega[keep, :, k]).mean(axis=1)
         ref = steady.mean_interval(series, 0.1)
         assert s["ci95_rad_s"][a] == pytest.approx(ref["ci95"], nan_ok=True)
@@ -285,7 +293,7 @@ PIPE_SCENE = {"scene": {"domain": {"diameter_mm": 50.0, "length_mm": 100.0}, "fl
               "lattice": {"nu_lu": 0.5, "units": {"dx_m": 1.0e-3, "dt_s": 1.0e-3}}}  # nu 5e-4 m^2/s: R^2/nu 1.25 s
 
 
-def _long_case(tmp_path, n=600, dt=0.02, transient_s=0.0, frozen=True, summary_extra=None, seed=3, core=None):
+def _long_case(tmp_path, n=600, dt=0.02, transient_s=0.0, frozen=True, summary_extra=None, seed=3, core="steady"):
     """4 cylinders, AR(1) spins about 1 rad/s (with a decaying spin-up excess lasting ``transient_s``),
     orientations fixed (frozen) or tumbling with random steps; flow_rate.csv with the driving force."""
     rng = np.random.default_rng(seed)
@@ -302,7 +310,9 @@ def _long_case(tmp_path, n=600, dt=0.02, transient_s=0.0, frozen=True, summary_e
     write_case(tmp_path / "c", t, omega, q=q, spinup_s=0.1, summary_extra={**PIPE_SCENE, **(summary_extra or {})})
     force = 700.0 + 5.0 * rng.standard_normal(n) + (300.0 * np.exp(-t / (transient_s / 5.0)) if transient_s else 0.0)
     cols = {"t_s": t, "q_m3_s": 1e-4, "force_density_N_m3": force, "max_density_deviation": np.linspace(0.01, 0.05, n)}
-    if core is not None:
+    if core == "steady":
+        cols["core_velocity_ratio"] = 1.6 + 0.002 * rng.standard_normal(n)
+    elif core is not None:
         cols["core_velocity_ratio"] = core(t, rng)
     pd.DataFrame(cols).to_csv(tmp_path / "c" / "flow_rate.csv", index=False)
     return t
@@ -317,7 +327,7 @@ def test_spinup_is_never_shorter_than_two_viscous_times_and_records_the_halves_e
     assert {"force_density", "mean_abs_omega_x", "orientation_order"} <= set(sp["observables"])
     for ev in sp["observables"].values():
         assert {"first", "second", "first_ci95", "second_ci95", "agree"} <= set(ev)
-    assert "not available" in sp["profile_observable"]
+    assert sp["profile_observable"] == S.PROFILE_OBSERVABLE
 
 
 def test_spinup_detected_on_a_transient_longer_than_two_viscous_times(tmp_path):
@@ -348,8 +358,9 @@ def test_a_flow_profile_still_blunting_sets_the_spinup_through_the_core_velocity
     assert "core_velocity_ratio" in sp["observables"] and sp["profile_observable"] == S.PROFILE_OBSERVABLE
     assert sp["limited_by"] == "core_velocity_ratio"
     assert sp["spinup_s"] > 3.0  # 0.25 exp(-t) falls below the noise (0.002) only after ~5 s
-    _long_case(tmp_path / "old")  # a flow_rate.csv without the column: said so
-    assert S.case_statistics("c", tmp_path / "old" / "c", CYL_CFG)["spinup"]["profile_observable"] == S.PROFILE_MISSING
+    _long_case(tmp_path / "old", core=None)  # a flow_rate.csv without the column: a loud error, not a quiet omission
+    with pytest.raises(SR.SeriesError, match="core_velocity_ratio"):
+        S.case_statistics("c", tmp_path / "old" / "c", CYL_CFG)
 
 
 def test_fixed_orientations_are_frozen_and_tumbling_ones_are_not(tmp_path):
@@ -438,12 +449,71 @@ def test_diagnostics_thresholds_are_validated_by_check_config():
     assert any("diagnostics.frozen_remaining" in p for p in config_problems(bad, schema))
 
 
-def test_statistics_of_a_completed_run_without_its_trajectory_refuse_and_keep_the_committed_ones(tmp_path):
+def test_statistics_of_a_run_without_trajectory_or_series_refuse_and_keep_the_committed_ones(tmp_path):
     _long_case(tmp_path, frozen=False)
     case = tmp_path / "c"
     S.write_case_outputs("c", case, CYL_CFG)
-    before = (case / "stats.json").read_text()
+    before = (case / "stats.json").read_text(), (case / "orientation.csv").read_text()
     (case / "particles.parquet").unlink()
-    with pytest.raises(FileNotFoundError, match="not committed"):
+    (case / SR.SERIES).unlink()
+    with pytest.raises(SR.SeriesError, match="rerun the case"):
         S.write_case_outputs("c", case, CYL_CFG)
-    assert (case / "stats.json").read_text() == before
+    assert ((case / "stats.json").read_text(), (case / "orientation.csv").read_text()) == before
+
+
+# ---------------------------------------------------------------- the compact series and the alignment
+
+def test_force_and_profile_series_enter_the_stationarity_test_although_particles_start_at_t0(tmp_path):
+    # particles sampled from t = 0, flow_rate.csv one interval later: both fluid series still count
+    t = np.round(np.arange(0, 601) * 0.02, 9)
+    rng = np.random.default_rng(9)
+    write_case(tmp_path / "c", t, 1.0 + 0.1 * rng.standard_normal((t.size, 3, 3)), spinup_s=0.1,
+               summary_extra=PIPE_SCENE)
+    sp = S.case_statistics("c", tmp_path / "c", CYL_CFG)["spinup"]
+    assert {"force_density", "core_velocity_ratio"} <= set(sp["observables"])
+
+
+def test_a_particle_sample_without_its_fluid_sample_is_a_loud_error(tmp_path):
+    t = np.round(np.arange(0, 50) * 0.02, 9)
+    write_case(tmp_path / "c", t, np.ones((t.size, 2, 3)), spinup_s=0.1)
+    fr = pd.read_csv(tmp_path / "c" / "flow_rate.csv")
+    fr.drop(index=20).to_csv(tmp_path / "c" / "flow_rate.csv", index=False)
+    with pytest.raises(SR.SeriesError, match="do not align"):
+        S.case_statistics("c", tmp_path / "c", CYL_CFG)
+    (tmp_path / "c" / "flow_rate.csv").unlink()
+    with pytest.raises(SR.SeriesError, match="flow_rate.csv is missing"):
+        S.case_statistics("c", tmp_path / "c", CYL_CFG)
+
+
+def test_statistics_rebuilt_from_the_committed_series_without_the_trajectory_are_identical(tmp_path):
+    _long_case(tmp_path, frozen=False)
+    d = tmp_path / "c"
+    S.write_case_outputs("c", d, CYL_CFG)
+    with_traj = (d / "stats.json").read_text(), (d / "orientation.csv").read_text()
+    (d / "particles.parquet").unlink()  # what a fresh clone has: series.csv.gz, trajectory.json, last_frame.csv
+    S.write_case_outputs("c", d, CYL_CFG)
+    assert ((d / "stats.json").read_text(), (d / "orientation.csv").read_text()) == with_traj
+    s = json.loads(with_traj[0])
+    # the half-window sensitivity is there, over the later half of the samples
+    assert s["second_half"]["samples"] == s["samples"] // 2 + s["samples"] % 2
+    assert s["second_half"]["start_s"] > s["spinup_s"]
+
+
+def test_series_statistics_agree_with_the_direct_trajectory_averages(tmp_path):
+    t, omega = _omega_case(tmp_path)
+    s = S.case_statistics("c", tmp_path / "c", CYL_CFG)
+    keep = t > 0.3 + 1e-12
+    for k, a in enumerate("xyz"):  # 9 significant digits in the series
+        assert s["mean_abs_omega_rad_s"][a] == pytest.approx(np.abs(omega[keep, :, k]).mean(), rel=1e-8)
+
+
+def test_a_changed_spinup_without_the_trajectory_is_a_loud_error_not_stale_diagnostics(tmp_path):
+    _long_case(tmp_path, frozen=False)
+    d = tmp_path / "c"
+    S.write_case_outputs("c", d, CYL_CFG)
+    (d / "particles.parquet").unlink()
+    with pytest.raises(SR.SeriesError, match="rerun the case"):
+        S.case_statistics("c", d, CYL_CFG, spinup_s=5.0)
+    (d / SR.SERIES).unlink()
+    with pytest.raises(SR.SeriesError, match="series.csv.gz is missing"):
+        S.case_statistics("c", d, CYL_CFG)

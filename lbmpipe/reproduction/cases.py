@@ -23,7 +23,7 @@ import pandas as pd
 import yaml
 
 from ..cost import predict
-from ..outputs import write_json
+from ..outputs import git_commit, write_json
 from ..particles.packing import count_for_concentration
 from ..particles.placement import PACKING_COLUMNS, PARQUET_COLUMNS, STATIC_COLUMNS, packed_group, write_packing
 from ..particles.shapes import make_shape
@@ -278,11 +278,33 @@ def write_case_scene(config: dict, fidelity_name: str, case_name: str, path: Pat
     return scene
 
 
+class DirtyTreeError(RuntimeError):
+    """A production run asked of a source tree with uncommitted changes."""
+
+
+def require_clean_tree(production: bool, allow_dirty: bool) -> dict:
+    """The provenance record of a pipeline run (``summary.json`` ``provenance``). A run of a
+    ``production`` level (one whose results are committed) refuses a source tree with
+    uncommitted changes: its commit could not recover the code. ``allow_dirty`` (the config key,
+    for experiments) lets it run and is recorded."""
+    commit = git_commit()
+    dirty = bool(commit and commit.endswith("-dirty"))
+    if production and dirty and not allow_dirty:
+        raise DirtyTreeError(
+            f"the source tree has uncommitted changes ({commit}): a production run must come from a clean commit, "
+            "or its code cannot be recovered. Fix: commit (or stash) the changes, or, for an experiment, run with "
+            "`--config allow_dirty=true` (recorded in the summary's provenance)")
+    return {"git_commit": commit, "production": bool(production), "dirty": dirty,
+            "allow_dirty": bool(allow_dirty) and dirty}
+
+
 def simulate_case(scene_path: Path, packing_json: Path | None, out_dir: Path, threads: int,
-                  checkpoint: Path | None = None) -> dict:
+                  checkpoint: Path | None = None, production: bool = False, allow_dirty: bool = False) -> dict:
     """Run one case of the pipeline: the scene's solver run, or, when its packing could not be
-    made, the ``unpackable`` record (``write_unpackable``). Returns the summary."""
+    made, the ``unpackable`` record (``write_unpackable``). Returns the summary, with its
+    ``provenance`` (:func:`require_clean_tree`, checked before anything runs)."""
     out_dir = Path(out_dir)
+    provenance = require_clean_tree(production, allow_dirty)
     if packing_json is not None:
         info = json.loads(Path(packing_json).read_text())
         if info.get("status") != "packed":
@@ -292,7 +314,10 @@ def simulate_case(scene_path: Path, packing_json: Path | None, out_dir: Path, th
     numba.set_num_threads(max(1, min(int(threads), numba.config.NUMBA_NUM_THREADS)))
     scene = load_scene(scene_path)
     kwargs = {"checkpoint": checkpoint} if checkpoint is not None else {}
-    summary = run_scene(scene, derive(scene), out_dir, progress=False, **kwargs)
+    run_scene(scene, derive(scene), out_dir, progress=False, **kwargs)
+    summary = json.loads((out_dir / "summary.json").read_text())
+    summary["provenance"] = provenance
+    write_json(out_dir / "summary.json", summary)
     # A run stopped as unstable before the averaging window has no profile: say so in an empty
     # table rather than leave the pipeline without the file.
     if not (out_dir / "profile.csv").exists():

@@ -11,6 +11,7 @@ import numpy as np
 import pandas as pd
 
 from . import statistics as st
+from .steady import rotation_matrices
 from .figures import CUBE_MAX_AXIS_ANGLE_DEG, status_text
 from .plotting import plt
 
@@ -89,7 +90,7 @@ def snapshot_figure(case_dir: Path, title: str = ""):
         t_last = df["t_s"].max()
         last = df[df["t_s"] == t_last].merge(pd.read_csv(static), on="id", how="left")
         q = last[["qw", "qx", "qy", "qz"]].to_numpy()
-        A = st.rotation_matrices(q)
+        A = rotation_matrices(q)
         centre = last[["x_mm", "y_mm", "z_mm"]].to_numpy()
         polys, values = [], []
         is_cyl = (last["shape"] == "cylinder").to_numpy()

@@ -46,17 +46,13 @@ import pandas as pd
 from scipy import stats as _st
 
 from . import health as H
+from . import series as SR
 from .health import _num
-from .steady import (locking_diagnostics, mean_interval, orientation_memory, orientation_order, rotation_matrices,
-                     spinup_end, viscous_time_s)
+from .angles import (CUBE_MAX_AXIS_ANGLE_DEG, ORIENTATION_KINDS, cube_axis_angle, cube_projected_angle,  # noqa: F401
+                     cylinder_axis_angle, isotropic_bin_fractions, isotropic_cdf, orientation_angles)
+from .steady import mean_interval, spinup_end, viscous_time_s
 
 AXES = ("x", "y", "z")
-CUBE_MAX_AXIS_ANGLE_DEG = math.degrees(math.acos(1.0 / math.sqrt(3.0)))  # 54.7356
-# (kind, upper edge of the range in degrees, number of bins)
-ORIENTATION_KINDS = {
-    "cylinder": (("cyl_axis_angle", 90.0, 9),),
-    "cube": (("cube_projected_angle", 45.0, 9), ("cube_axis_angle", CUBE_MAX_AXIS_ANGLE_DEG, 9)),
-}
 ORIENTATION_COLUMNS = ["kind", "bin_lo_deg", "bin_hi_deg", "fraction", "ci95"]
 META_COLUMNS = ["case", "shape", "size_label", "diameter_mm", "length_mm", "edge_mm", "concentration",
                 "reynolds", "collisions"]
@@ -108,83 +104,6 @@ def batch_means(series: np.ndarray, n_batches: int = 10, confidence: float = 0.9
 
 
 # ----------------------------------------------------------------------------------------------
-# orientation
-
-def cylinder_axis_angle(q: np.ndarray) -> np.ndarray:
-    """Angle (deg, 0-90) between the cylinder axis (body z) and the pipe axis (lab z)."""
-    a = rotation_matrices(np.reshape(q, (-1, 4)))
-    return np.degrees(np.arccos(np.clip(np.abs(a[:, 2, 2]), 0.0, 1.0)))
-
-
-def cube_axis_angle(q: np.ndarray) -> np.ndarray:
-    """3-D angle (deg, 0-54.74) between the pipe axis and the nearest cube axis."""
-    a = rotation_matrices(np.reshape(q, (-1, 4)))
-    return np.degrees(np.arccos(np.clip(np.abs(a[:, 2, :]).max(axis=1), 0.0, 1.0)))
-
-
-def cube_projected_angle(q: np.ndarray) -> np.ndarray:
-    """In-image angle (deg, 0-45) of a cube seen by a camera looking along lab y: the body axis
-    with the longest projection on the x-z plane, its angle to the pipe axis folded by the
-    square's symmetry (module docstring gives the exact definition)."""
-    a = rotation_matrices(np.reshape(q, (-1, 4)))
-    px, pz = a[:, 0, :], a[:, 2, :]  # (N, 3): projections of the three body axes
-    k = np.argmax(px * px + pz * pz, axis=1)
-    i = np.arange(a.shape[0])
-    alpha = np.degrees(np.arctan2(px[i, k], pz[i, k]))
-    beta = np.mod(alpha, 90.0)
-    return np.minimum(beta, 90.0 - beta)
-
-
-_ANGLE_FUNCS = {"cyl_axis_angle": cylinder_axis_angle, "cube_axis_angle": cube_axis_angle,
-                "cube_projected_angle": cube_projected_angle}
-
-
-def orientation_angles(kind: str, q: np.ndarray) -> np.ndarray:
-    """Angles (deg) of ``kind`` (``cyl_axis_angle``, ``cube_axis_angle``,
-    ``cube_projected_angle``) for quaternions ``q`` (N, 4)."""
-    return _ANGLE_FUNCS[kind](q)
-
-
-def isotropic_cdf(kind: str, angle_deg) -> np.ndarray:
-    """Share of uniformly random orientations (Haar measure on rotations) whose angle ``kind``
-    is at most ``angle_deg`` -- the reference an isotropic suspension gives, in closed form:
-
-    - ``cyl_axis_angle``: the axis is uniform on the sphere and its angle to the pipe axis has
-      density ``sin theta`` on 0-90 deg, so ``F = 1 - cos theta``.
-    - ``cube_axis_angle``: the pipe axis seen from the body is uniform on the sphere; the nearest
-      cube axis is the one whose cell (``|u_k| = max``, 1/6 of the sphere) holds it. In the cell of
-      body z, polar angle ``t``, azimuth ``p`` in 0-45 deg (1/8 of the cell), the cell ends at
-      ``tan t = 1 / cos p``. Up to 45 deg no cell boundary is reached: ``F = 3 (1 - cos theta)``;
-      beyond, with ``cos p* = cot theta``, ``F = (12/pi) [p* - asin(sin p* / sqrt 2)
-      + (pi/4 - p*)(1 - cos theta)]`` (the boundary term integrates in closed form with
-      ``s = sin p``), which reaches 1 at ``theta = arccos(1/sqrt 3)``.
-    - ``cube_projected_angle``: uniform on 0-45 deg, ``F = theta / 45``. A rotation about the
-      camera axis (lab y) leaves the Haar measure unchanged, turns every projected edge by the
-      same angle and keeps which one is longest, so the in-image angle is uniform on the circle
-      and its fold into 0-45 deg is uniform too.
-    """
-    th = np.radians(np.clip(np.asarray(angle_deg, dtype=float), 0.0, None))
-    if kind == "cyl_axis_angle":
-        return 1.0 - np.cos(np.minimum(th, np.pi / 2))
-    if kind == "cube_projected_angle":
-        return np.clip(np.degrees(th) / 45.0, 0.0, 1.0)
-    if kind == "cube_axis_angle":
-        th = np.minimum(th, math.radians(CUBE_MAX_AXIS_ANGLE_DEG))
-        low = 3.0 * (1.0 - np.cos(th))
-        with np.errstate(divide="ignore", invalid="ignore"):
-            p = np.arccos(np.clip(1.0 / np.tan(np.maximum(th, np.pi / 4)), 0.0, 1.0))
-        high = (12.0 / np.pi) * (p - np.arcsin(np.sin(p) / math.sqrt(2.0)) + (np.pi / 4 - p) * (1.0 - np.cos(th)))
-        return np.where(th <= np.pi / 4, low, np.minimum(high, 1.0))
-    raise KeyError(f"unknown orientation kind {kind!r}; one of {sorted(_ANGLE_FUNCS)}")
-
-
-def isotropic_bin_fractions(kind: str, edges_deg) -> np.ndarray:
-    """Fraction of uniformly random orientations in each bin ``[edges[i], edges[i+1])`` of the
-    angle ``kind`` (:func:`isotropic_cdf` differenced): the reference line of Figs. 8 and 9."""
-    return np.diff(isotropic_cdf(kind, np.asarray(edges_deg, dtype=float)))
-
-
-# ----------------------------------------------------------------------------------------------
 # per case
 
 def case_metadata(case: str, case_cfg: dict) -> dict:
@@ -208,39 +127,6 @@ def case_metadata(case: str, case_cfg: dict) -> dict:
             "collisions": bool(case_cfg.get("collisions", True))}
 
 
-def _load_samples(case_dir: Path, spinup_s: float) -> tuple[pd.DataFrame, int]:
-    """Rows of the free particles at sampled times ``t > spinup_s``; number of such times."""
-    case_dir = Path(case_dir)
-    pq = case_dir / "particles.parquet"
-    if not pq.exists():
-        return pd.DataFrame(), 0
-    df = pd.read_parquet(pq)
-    if df.empty:
-        return df, 0
-    static = case_dir / "particles_static.csv"
-    if static.exists():
-        st = pd.read_csv(static)
-        if "fixed" in st.columns and len(st):
-            fixed = st["fixed"].astype(str).str.lower().isin(("true", "1", "1.0"))
-            df = df[~df["id"].isin(st.loc[fixed, "id"])]
-    # a sample written exactly at the end of spin-up belongs to spin-up; allow for round-off in t
-    if math.isfinite(spinup_s):
-        tol = 1e-9 * max(1.0, abs(spinup_s))
-        df = df[df["t_s"] > spinup_s + tol]
-    df = df.sort_values(["t_s", "id"], kind="stable")
-    return df, int(df["t_s"].nunique())
-
-
-def _per_sample(df: pd.DataFrame, values: np.ndarray) -> np.ndarray:
-    """Average of ``values`` (one per row of ``df``) over the particles of each sampled time."""
-    return pd.Series(values, index=df.index).groupby(df["t_s"].to_numpy()).mean().to_numpy()
-
-
-def _sample_interval(df: pd.DataFrame) -> float:
-    t = np.unique(df["t_s"].to_numpy())
-    return float(np.median(np.diff(t))) if t.size > 1 else _NAN
-
-
 def _nan_axes() -> dict:
     return {a: _NAN for a in AXES}
 
@@ -250,8 +136,6 @@ _INTERVAL_KEYS = ("method", "batch_s", "n_batches", "dof", "tau_int_s", "tau_sta
                   "duration_s", "message")
 PROFILE_OBSERVABLE = ("core_velocity_ratio of flow_rate.csv: the mean axial velocity within half the radius over "
                       "the mean over all the fluid, per sample (1.75 for Hagen-Poiseuille)")
-PROFILE_MISSING = ("not available: this run's flow_rate.csv has no per-sample flow-profile scalar "
-                   "(core_velocity_ratio); rerun the case")
 
 
 def _interval(series, dt: float, tau_s: float | None = None) -> dict:
@@ -274,29 +158,6 @@ def pipe_viscous_time_s(summary: dict) -> float:
     return viscous_time_s(float(d), float(nu)) if d and nu else _NAN
 
 
-def _body_arrays(df: pd.DataFrame, cols: list[str]) -> tuple[np.ndarray, np.ndarray]:
-    """Sample times (n_t,) and ``cols`` per body (n_t, n_b, len(cols)) of the bodies present in
-    every sample."""
-    times = np.unique(df["t_s"].to_numpy())
-    counts = df.groupby("id")["t_s"].nunique()
-    ids = counts.index[counts.to_numpy() == times.size]
-    d = df[df["id"].isin(ids)].sort_values(["t_s", "id"], kind="stable")
-    return times, d[cols].to_numpy(float).reshape(times.size, ids.size, len(cols))
-
-
-def _flow_series(case_dir: Path, t: np.ndarray, column: str) -> np.ndarray | None:
-    """A column of ``flow_rate.csv`` (the driving force density, the profile's core velocity
-    ratio) at the particle sample times ``t``, or None where it is missing or not finite."""
-    fr = H.read_flow_rate(case_dir)
-    if fr is None or column not in fr or fr.empty:
-        return None
-    key = pd.Series(pd.to_numeric(fr[column], errors="coerce").to_numpy(float),
-                    index=np.round(fr["t_s"].to_numpy(float), 9))
-    key = key[~key.index.duplicated()]
-    out = key.reindex(np.round(t, 9)).to_numpy()
-    return out if np.all(np.isfinite(out)) else None
-
-
 def detect_spinup(t: np.ndarray, observables: dict, summary: dict, min_viscous_times: float) -> dict:
     """Spin-up of a run: :func:`lbmpipe.reproduction.steady.spinup_end` (MSER-5 on every observable,
     the latest, halves of the kept window compared) never before ``min_viscous_times`` ``R^2/nu``
@@ -306,7 +167,7 @@ def detect_spinup(t: np.ndarray, observables: dict, summary: dict, min_viscous_t
     own = float(summary.get("spinup_s") or 0.0)
     floor = max(own, min_viscous_times * tv) if np.isfinite(tv) else own
     base = {"viscous_time_s": tv, "min_viscous_times": float(min_viscous_times), "required_s": floor,
-            "profile_observable": PROFILE_OBSERVABLE if "core_velocity_ratio" in observables else PROFILE_MISSING}
+            "profile_observable": PROFILE_OBSERVABLE}
     if np.count_nonzero(t > floor + 1e-9 * max(1.0, floor)) < 4:
         return {**base, "method": "run shorter than the required spin-up", "spinup_s": own, "steady": False,
                 "limited_by": "run length", "observables": {},
@@ -314,27 +175,6 @@ def detect_spinup(t: np.ndarray, observables: dict, summary: dict, min_viscous_t
                             f"({min_viscous_times:g} R^2/nu = {min_viscous_times * tv:.3g} s): statistics after the "
                             f"run's own spin-up {own:.3g} s, not of a steady state")}
     return {**base, **spinup_end(t, observables, floor)}
-
-
-def _frozen(q_all: np.ndarray, dt: float, shape: str, threshold: float) -> dict:
-    """:func:`lbmpipe.reproduction.steady.orientation_memory` from the first sample (the packing):
-    fraction of the orientation autocorrelation left at the end, frozen beyond ``threshold``."""
-    m = orientation_memory(q_all, dt, shape, frozen_threshold=threshold)
-    return {"remaining": m["remaining"], "threshold": m["frozen_threshold"], "frozen": m["frozen"],
-            "duration_s": q_all.shape[0] * dt}
-
-
-def _locked(x: np.ndarray, q: np.ndarray, meta: dict, summary: dict, diag: dict) -> dict:
-    """:func:`lbmpipe.reproduction.steady.locking_diagnostics` over the whole run (column, no
-    passing, cannot sit side by side); not computed without the scene's pipe in the summary."""
-    dom = (summary.get("scene") or {}).get("domain") or {}
-    if not dom.get("diameter_mm") or not dom.get("length_mm") or x.shape[1] < 2:
-        return {"locked": False, "message": "not computed: no pipe in summary.json or fewer than 2 bodies"}
-    size = ({"edge_mm": meta["edge_mm"]} if meta["shape"] == "cube"
-            else {"diameter_mm": meta["diameter_mm"], "length_mm": meta["length_mm"]})
-    return locking_diagnostics(x, q, meta["shape"], float(dom["diameter_mm"]), float(dom["length_mm"]),
-                               k_neighbours=int(diag["k_neighbours"]),
-                               retained_locked=float(diag["locked_neighbours_retained"]), **size)
 
 
 def resolution(meta: dict, summary: dict) -> dict:
@@ -359,17 +199,25 @@ def case_statistics(case: str, case_dir: Path, case_cfg: dict, spinup_s: float |
                     config: dict | None = None) -> dict:
     """The ``stats.json`` dict of the contract for one case directory.
 
-    Spin-up (``spinup``, ``spinup_s``): :func:`detect_spinup` on the driving force density
-    (``flow_rate.csv``), the particle-mean ``|Omega_a|`` per axis and the orientation order
-    parameter (:func:`lbmpipe.reproduction.steady.orientation_order`), never shorter than
+    A completed particle run's statistics come from its compact series (``series.csv.gz``) and
+    ``trajectory.json`` (:mod:`lbmpipe.reproduction.series`); where the trajectory
+    (``particles.parquet``) is present, both are first (re)written from it, so a fresh clone
+    without trajectories rebuilds the same ``stats.json``. Neither present is an error.
+
+    Spin-up (``spinup``, ``spinup_s``): :func:`detect_spinup` on the driving force density and
+    the profile's core velocity ratio (``flow_rate.csv``, aligned sample by sample: a missing or
+    misaligned value is an error), the particle-mean ``|Omega_a|`` per axis and the orientation
+    order parameter (:func:`lbmpipe.reproduction.steady.orientation_order`), never shorter than
     ``diagnostics.min_spinup_viscous_times`` ``R^2/nu``; a given ``spinup_s`` replaces the test.
     ``mean_abs_omega_rad_s[a]``: mean of ``|Omega_a|`` (lab frame) over free particles and samples
     after spin-up; ``ci95_rad_s[a]``, ``tau_int_s[a]``, ``omega_intervals[a]``: its
     :func:`lbmpipe.reproduction.steady.mean_interval` (own ``tau_int``). ``orientation[kind]``:
     ``{mean_deg, ci95_deg, median_deg, interval}``, and ``orientation_order``, with intervals
-    designed on the orientation correlation time (``orientation_memory``). Diagnostics: ``frozen``,
-    ``locked``, ``health`` (:func:`lbmpipe.reproduction.health.run_health`), ``resolution`` and
-    ``flags``. NaN statistics when the status is not ``completed`` or no sample lies after spin-up.
+    designed on the orientation correlation time (``orientation_memory``). ``second_half``: the
+    same means and intervals over the later half of the window (the sensitivity of a verdict to
+    the averaging window). Diagnostics: ``frozen``, ``locked``, ``health``
+    (:func:`lbmpipe.reproduction.health.run_health`), ``resolution`` and ``flags``. NaN
+    statistics when the status is not ``completed`` or no sample lies after spin-up.
     """
     case_dir = Path(case_dir)
     diag = H.thresholds(config)
@@ -384,68 +232,104 @@ def case_statistics(case: str, case_dir: Path, case_cfg: dict, spinup_s: float |
     out["flags"] = H.case_flags(out)
     if status != "completed" or meta["shape"] not in ORIENTATION_KINDS:
         return out
-    df, n_all = _load_samples(case_dir, -math.inf)
-    if n_all == 0:
-        return out
-    _particle_statistics(out, df, case_dir, meta, s, diag, spinup_s)
+    traj = None
+    if (case_dir / SR.TRAJECTORY_FILE).exists():
+        traj = SR.free_rows(pd.read_parquet(case_dir / SR.TRAJECTORY_FILE), case_dir / "particles_static.csv")
+        if traj.empty:
+            return out
+        SR.write_series(SR.build_series(traj, meta["shape"]), case_dir)
+    series = SR.read_series(case_dir, meta["shape"])
+    _particle_statistics(out, series, traj, case_dir, meta, s, diag, spinup_s)
     out["flags"] = H.case_flags(out)
     return out
 
 
-def _particle_statistics(out: dict, df: pd.DataFrame, case_dir: Path, meta: dict, summary: dict, diag: dict,
-                         spinup_s: float | None) -> None:
-    """Fill ``out`` with the spin-up, the intervals and the diagnostics of a completed particle case."""
+def _after(t: np.ndarray, start: float) -> np.ndarray:
+    """Samples after ``start`` (a sample exactly at the end of spin-up belongs to spin-up)."""
+    return t > start + 1e-9 * max(1.0, abs(start))
+
+
+def _window_statistics(series: pd.DataFrame, keep: np.ndarray, dt: float, shape: str, window: dict) -> dict:
+    """Means and intervals of ``|Omega_a|`` and of the orientation angles over the samples ``keep``
+    (``window``: the orientation memory and median angles of ``trajectory.json`` for them)."""
+    sub = series[keep]
+    n = sub["n_bodies"].to_numpy(float)
+    out = {"samples": int(keep.sum()), "mean_abs_omega_rad_s": _nan_axes(), "ci95_rad_s": _nan_axes(),
+           "tau_int_s": _nan_axes(), "omega_intervals": {}, "orientation": {}}
+    for a in AXES:
+        m = sub[f"mean_abs_omega_{a}"].to_numpy(float)
+        r = _interval(m, dt)
+        out["mean_abs_omega_rad_s"][a] = float(np.sum(n * m) / np.sum(n))  # over (body, sample) pairs
+        out["ci95_rad_s"][a] = r["ci95"]
+        out["tau_int_s"][a] = r["tau_int_s"]
+        out["omega_intervals"][a] = r
+    tau_o = window["orientation_memory"]["tau_orient_s"]
+    tau_o = tau_o if tau_o is not None and np.isfinite(tau_o) else None
+    out["orientation_order"] = _interval(sub["orientation_order"].to_numpy(float), dt, tau_s=tau_o)
+    for kind, _, _ in ORIENTATION_KINDS[shape]:
+        r = _interval(sub[f"{kind}_mean_deg"].to_numpy(float), dt, tau_s=tau_o)
+        out["orientation"][kind] = {"mean_deg": r["mean"], "ci95_deg": r["ci95"],
+                                    "median_deg": _num(window["median_deg"].get(kind)), "interval": r}
+    return out
+
+
+def _particle_statistics(out: dict, series: pd.DataFrame, traj: pd.DataFrame | None, case_dir: Path, meta: dict,
+                         summary: dict, diag: dict, spinup_s: float | None) -> None:
+    """Fill ``out`` with the spin-up, the intervals and the diagnostics of a completed particle
+    case from its series (and, where ``traj`` is given, write ``trajectory.json`` from it first)."""
     shape = meta["shape"]
-    t, arr = _body_arrays(df, ["x_mm", "y_mm", "z_mm", "qw", "qx", "qy", "qz",
-                               "wx_rad_s", "wy_rad_s", "wz_rad_s"])
-    x, q, w = arr[..., :3], arr[..., 3:7], np.abs(arr[..., 7:])
-    dt = float(np.median(np.diff(t))) if t.size > 1 else 1.0
-    out["frozen"] = _frozen(q, dt, shape, float(diag["frozen_remaining"]))
-    out["locked"] = _locked(x, q, meta, summary, diag)
-    obs = {f"mean_abs_omega_{a}": w[..., k].mean(axis=1) for k, a in enumerate(AXES)}
-    obs["orientation_order"] = orientation_order(q, shape)
-    force = _flow_series(case_dir, t, "force_density_N_m3")
-    if force is not None:
-        obs = {"force_density": force, **obs}
-    profile = _flow_series(case_dir, t, "core_velocity_ratio")
-    if profile is not None:
-        obs["core_velocity_ratio"] = profile
+    t_all = series["t_s"].to_numpy(float)
+    dt = float(np.median(np.diff(t_all))) if t_all.size > 1 else 1.0
+    c_start = series["orientation_start_corr"].to_numpy(float)
+    tail = max(1, c_start.size // 10)
+    remaining = float(c_start[-tail:].mean())
+    thr = float(diag["frozen_remaining"])
+    out["frozen"] = {"remaining": remaining, "threshold": thr, "frozen": bool(remaining > thr),
+                     "duration_s": t_all.size * dt}
+    # the initial state (t = 0) has no fluid sample: the flow is first sampled one interval later
+    moving = t_all > 0.0
+    t = t_all[moving]
+    sub = series[moving]
+    obs = {"force_density": SR.flow_series(case_dir, t, "force_density_N_m3")}
+    obs.update({f"mean_abs_omega_{a}": sub[f"mean_abs_omega_{a}"].to_numpy(float) for a in AXES})
+    obs["orientation_order"] = sub["orientation_order"].to_numpy(float)
+    obs["core_velocity_ratio"] = SR.flow_series(case_dir, t, "core_velocity_ratio")
     if spinup_s is None:
         out["spinup"] = detect_spinup(t, obs, summary, float(diag["min_spinup_viscous_times"]))
         out["spinup_s"] = float(out["spinup"]["spinup_s"])
     else:
         out["spinup"] = {"method": "given", "spinup_s": float(spinup_s)}
-    tol = 1e-9 * max(1.0, abs(out["spinup_s"]))
-    keep = t > out["spinup_s"] + tol
-    sel = df[df["t_s"] > out["spinup_s"] + tol]
+    start = out["spinup_s"]
+    half = SR.second_half_start(t_all, start)
+    if traj is not None:
+        windows = [start] + ([half] if np.isfinite(half) else [])
+        doc = SR.trajectory_diagnostics(traj, shape, meta, summary, diag, windows)
+        (case_dir / SR.TRAJECTORY).write_text(json.dumps(_jsonable(doc), indent=1, allow_nan=False) + "\n")
+    keep = _after(t_all, start)
     out["samples"] = int(keep.sum())
     if not keep.any():
         return
-    out["n_particles"] = int(sel["id"].nunique())
-    out["omega_intervals"] = {}
-    for a in AXES:
-        r = _interval(obs[f"mean_abs_omega_{a}"][keep], dt)
-        out["mean_abs_omega_rad_s"][a] = float(np.abs(sel[f"w{a}_rad_s"].to_numpy()).mean())
-        out["ci95_rad_s"][a] = r["ci95"]
-        out["tau_int_s"][a] = r["tau_int_s"]
-        out["omega_intervals"][a] = r
-    out["n_batches"] = int(min(r["n_batches"] for r in out["omega_intervals"].values()))
-    mem = orientation_memory(q[keep], dt, shape) if keep.sum() >= 4 else {"tau_orient_s": _NAN, "tau_status":
-                                                                           "undefined", "e_fold_s": _NAN}
-    tau_o = mem["tau_orient_s"]
-    out["orientation_memory"] = {k: mem[k] for k in ("tau_orient_s", "tau_status", "e_fold_s")}
-    out["orientation_order"] = _interval(obs["orientation_order"][keep], dt, tau_s=tau_o)
-    qs = sel[["qw", "qx", "qy", "qz"]].to_numpy()
-    for kind, _, _ in ORIENTATION_KINDS[shape]:
-        ang = orientation_angles(kind, qs)
-        r = _interval(_per_sample(sel, ang), dt, tau_s=tau_o)
-        out["orientation"][kind] = {"mean_deg": r["mean"], "ci95_deg": r["ci95"], "median_deg": float(np.median(ang)),
-                                    "interval": r}
+    win = SR.read_window(case_dir, start)
+    out["locked"] = win["locked"]
+    out["n_particles"] = int(series.loc[keep, "n_bodies"].max())
+    out["orientation_memory"] = win["orientation_memory"]
+    full = _window_statistics(series, keep, dt, shape, win)
+    for k in ("mean_abs_omega_rad_s", "ci95_rad_s", "tau_int_s", "omega_intervals", "orientation_order",
+              "orientation"):
+        out[k] = full[k]
+    out["n_batches"] = int(min(r["n_batches"] for r in full["omega_intervals"].values()))
+    if np.isfinite(half):
+        h = _window_statistics(series, _after(t_all, half), dt, shape, SR.read_window(case_dir, half))
+        out["second_half"] = {"start_s": half, "samples": h["samples"],
+                              "mean_abs_omega_rad_s": h["mean_abs_omega_rad_s"], "ci95_rad_s": h["ci95_rad_s"],
+                              "orientation": {k: {kk: v[kk] for kk in ("mean_deg", "ci95_deg", "median_deg")}
+                                              for k, v in h["orientation"].items()}}
 
 
 def orientation_histograms(case_dir: Path, shape: str, spinup_s: float, status: str = "completed",
                            tau_s: float | None = None) -> pd.DataFrame:
-    """``orientation.csv`` rows (``kind, bin_lo_deg, bin_hi_deg, fraction, ci95``) of one case.
+    """``orientation.csv`` rows (``kind, bin_lo_deg, bin_hi_deg, fraction, ci95``) of one case,
+    from its series (``series.csv.gz``).
 
     ``fraction``: share of (particle, sample) pairs after spin-up in the bin; ``ci95``:
     :func:`lbmpipe.reproduction.steady.mean_interval` half-width of the per-sample fraction of the
@@ -453,20 +337,26 @@ def orientation_histograms(case_dir: Path, shape: str, spinup_s: float, status: 
     ``stats.json``'s ``orientation_memory``) when that exceeds the bin series' own ``tau_int``.
     The bins are laid out (with NaN values) even for a case with no samples, so tables keep their shape.
     """
+    case_dir = Path(case_dir)
     kinds = ORIENTATION_KINDS.get(shape, ())
-    df, n = _load_samples(case_dir, spinup_s) if status == "completed" else (pd.DataFrame(), 0)
-    dt = _sample_interval(df) if n else _NAN
+    series = None
+    if status == "completed" and kinds:
+        if not (case_dir / SR.SERIES).exists() and (case_dir / SR.TRAJECTORY_FILE).exists():
+            SR.write_series(SR.build_series(SR.free_rows(pd.read_parquet(case_dir / SR.TRAJECTORY_FILE),
+                                                         case_dir / "particles_static.csv"), shape), case_dir)
+        series = SR.read_series(case_dir, shape)
+    keep = _after(series["t_s"].to_numpy(float), spinup_s) if series is not None else None
     rows = []
     for kind, hi, nb in kinds:
         edges = np.linspace(0.0, hi, nb + 1)
-        if n:
-            ang = orientation_angles(kind, df[["qw", "qx", "qy", "qz"]].to_numpy())
-            idx = np.clip(np.searchsorted(edges, ang, side="right") - 1, 0, nb - 1)
-            onehot = np.zeros((ang.size, nb))
-            onehot[np.arange(ang.size), idx] = 1.0
-            per_t = pd.DataFrame(onehot, index=df.index).groupby(df["t_s"].to_numpy()).mean().to_numpy()
-            frac = onehot.mean(axis=0)
-            step = dt if np.isfinite(dt) else 1.0
+        if keep is not None and keep.any():
+            sub = series[keep]
+            t = sub["t_s"].to_numpy(float)
+            step = float(np.median(np.diff(t))) if t.size > 1 else 1.0
+            counts = sub[[f"{kind}_n{j}" for j in range(nb)]].to_numpy(float)
+            n = sub["n_bodies"].to_numpy(float)
+            frac = counts.sum(axis=0) / n.sum()
+            per_t = counts / n[:, None]
             ci = np.array([mean_interval(per_t[:, j], step, tau_s=tau_s)["ci95"] for j in range(nb)])
         else:
             frac = np.full(nb, _NAN)
@@ -490,22 +380,24 @@ def _jsonable(obj):
 
 def write_case_outputs(case: str, case_dir: Path, case_cfg: dict, config: dict | None = None) -> None:
     """Write ``stats.json`` and ``orientation.csv`` beside the case files (NaN written as JSON
-    ``null`` in ``stats.json``); ``config`` the pipeline config (its ``diagnostics`` thresholds)."""
+    ``null`` in ``stats.json``), and, from the trajectory where it is present, the compact series,
+    ``trajectory.json`` and ``last_frame.csv``; ``config`` the pipeline config (its
+    ``diagnostics`` thresholds). Without the trajectory, a completed particle run needs its
+    committed series and last frame: their absence is an error (nothing is written)."""
     case_dir = Path(case_dir)
-    summary = H.read_json(case_dir / "summary.json") or {}
-    if summary.get("status") == "completed" and not (case_dir / "particles.parquet").exists():
-        # a committed run's statistics without its trajectory would be NaN: keep the ones there
-        raise FileNotFoundError(
-            f"{case_dir / 'particles.parquet'} is not here (trajectories are not committed): the statistics of "
-            f"{case} need it; rerun the case (snakemake --forcerun simulate_particles <its summary.json>) or keep "
-            "its committed stats.json")
+    if not (case_dir / SR.TRAJECTORY_FILE).exists():
+        summary = H.read_json(case_dir / "summary.json") or {}
+        if summary.get("status") == "completed" and not (case_dir / LAST_FRAME).exists():
+            raise SR.SeriesError(f"{case_dir / LAST_FRAME} and {case_dir / SR.TRAJECTORY_FILE} are both missing: "
+                                 f"rerun {case}")
     s = case_statistics(case, case_dir, case_cfg, config=config)
-    (case_dir / "stats.json").write_text(json.dumps(_jsonable(s), indent=2, allow_nan=False) + "\n")
     spin = s["spinup_s"] if s["spinup_s"] is not None and np.isfinite(s["spinup_s"]) else 0.0
     tau_o = (s.get("orientation_memory") or {}).get("tau_orient_s")
-    orientation_histograms(case_dir, s["shape"], spin, status=s["status"], tau_s=tau_o).to_csv(
-        case_dir / "orientation.csv", index=False)
-    write_last_frame(case_dir)
+    hist = orientation_histograms(case_dir, s["shape"], spin, status=s["status"], tau_s=tau_o)
+    (case_dir / "stats.json").write_text(json.dumps(_jsonable(s), indent=2, allow_nan=False) + "\n")
+    hist.to_csv(case_dir / "orientation.csv", index=False)
+    if (case_dir / SR.TRAJECTORY_FILE).exists() or not (case_dir / LAST_FRAME).exists():
+        write_last_frame(case_dir)
 
 
 #: the last sample of a run's particles (positions, orientations): what the snapshot figure draws,
@@ -516,7 +408,7 @@ LAST_FRAME = "last_frame.csv"
 def write_last_frame(case_dir: Path) -> Path:
     """Write ``last_frame.csv``: the rows of ``particles.parquet``'s last sample (empty if none)."""
     case_dir = Path(case_dir)
-    pq = case_dir / "particles.parquet"
+    pq = case_dir / SR.TRAJECTORY_FILE
     df = pd.read_parquet(pq) if pq.exists() else pd.DataFrame()
     if not df.empty:
         df = df[df["t_s"] == df["t_s"].max()]
