@@ -37,7 +37,7 @@ from .fluid.effects import FlowRateControl, StreamCollide, WallBouzidi, stream_c
 from .fluid.lattice import get_lattice
 from .guard import guard_for
 from .particles.collisions import CollisionEffect, CollisionParams, Domain
-from .particles.coupling import ParticleSystem, particle_effects
+from .particles.coupling import REFILLS, ParticleSystem, particle_effects
 from .particles.placement import bodies_from_scene, domain_geometry
 from .solver import Simulation
 
@@ -90,6 +90,7 @@ def assemble(scene, params, grid: bnd.Grid, system=None) -> Step:
     flux = scene.driving.kind == "flow_rate"
     step = Step(fluid=None, force=np.array(params.accel_lu, dtype=np.float64), walls=walls)  # force density = rho_0 g
     if system is not None:
+        system.refill = REFILLS[num.refill]  # populations of the nodes a moving particle uncovers
         bouzidi = [e.links for e in walls if isinstance(e, WallBouzidi)]
         phases = particle_effects(system, flux_control=flux, bouzidi_links=bouzidi[0] if bouzidi else None,
                                   wall_links=[e.links for e in walls])

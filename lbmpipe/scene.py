@@ -124,6 +124,8 @@ class Numerics(_Model):
     wall: Literal["bounce_back", "bouzidi"] = Field(
         "bounce_back", description="Static curved walls: `bounce_back` (half-way, staircase, the paper's) or `bouzidi` (interpolated)."
     )
+    refill: Literal["equilibrium", "extrapolated"] = Field("equilibrium", description="Moving particles: populations of a node a particle uncovers. `equilibrium` (the paper's: Eq. (3) at the surface velocity and the neighbours' mean density) or `extrapolated` (plus the "
+                                                            "neighbours' non-equilibrium stress, Grad's approximation: `lbmpipe/particles/coupling/refill_extrapolated.py`).")
     precision: Literal["float64", "float32"] = Field("float64", description="Floating-point type of the distributions.")
     mach_limit: float = Field(
         DEFAULT_MACH_LIMIT, gt=0,

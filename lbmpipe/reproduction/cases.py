@@ -45,14 +45,45 @@ def fidelity_numerics(fidelity: dict, reynolds: float | None = None) -> dict:
     """Scene ``numerics`` for a fidelity level: its ``method`` (:data:`METHODS`; the ``paper``
     method is the scene's defaults), ``dx_mm`` and ``dt_s`` (or ``dt_per_mm_s``); at Re 26 the
     time step is multiplied by ``re26_dt_factor`` (default 1): the paper's dt gives a centre-line
-    Mach number of 0.56 there; 0.5 halves it (Mach 0.28, paper/reading.md's third row)."""
+    Mach number of 0.56 there; 0.5 halves it (Mach 0.28, paper/reading.md's third row).
+
+    ``mach_factor`` (default 1, the Mach knob) multiplies every time step of the level, at both
+    Reynolds numbers, at fixed dx: the same physical case (viscosity, flow rate, run length) at a
+    lattice Mach number times the factor, ``tau - 1/2`` times the factor. A level without it
+    writes the same scenes as before it existed."""
     num = {**METHODS[fidelity.get("method", "paper")], **fidelity.get("numerics", {})}
     dx = float(fidelity["dx_mm"])
     num["dx_mm"] = dx
     num["dt_s"] = float(fidelity.get("dt_s", time_step(dx, fidelity.get("dt_per_mm_s", DT_PER_MM_S))))
     if reynolds is not None and float(reynolds) == 26.0:
         num["dt_s"] *= float(fidelity.get("re26_dt_factor", 1.0))
+    if "mach_factor" in fidelity:
+        num["dt_s"] *= float(fidelity["mach_factor"])
     return num
+
+
+def mach_factor_problems(name: str, fidelity: dict) -> list[str]:
+    """Problems of level ``name``'s ``mach_factor``, one line each: the run's duration, spin-up and
+    sample interval (and ``duration_s_by_case``) must stay whole numbers of the time step it gives
+    at each Reynolds number (a scene rounds them to whole steps, which would change the sampling
+    silently). Empty without a ``mach_factor``."""
+    if "mach_factor" not in fidelity:
+        return []
+    run = fidelity["run"]
+    times = {f"run.{k}": float(run[k]) for k in ("duration_s", "spinup_s", "sample_interval_s")}
+    times.update({f"duration_s_by_case.{c}": float(t) for c, t in fidelity.get("duration_s_by_case", {}).items()})
+    out = []
+    for re in sorted(FLOWS):
+        dt = fidelity_numerics(fidelity, re)["dt_s"]
+        for key, t in times.items():
+            steps = t / dt
+            if t > 0 and abs(steps - round(steps)) > 1e-6 * max(steps, 1.0):
+                out.append(f"config error in fidelities.{name}.mach_factor: {fidelity['mach_factor']:g} gives dt = "
+                           f"{dt:.6g} s at Re {re:g}, and {key} = {t:g} s is {steps:.6g} steps, not a whole number. "
+                           "Fix: a factor that keeps every run time a whole number of steps (0.5 or 0.25 for the "
+                           "committed levels), or adjust the run times")
+                return out
+    return out
 
 
 def case_scene(name: str, case: dict, fidelity_name: str, fidelity: dict, packing_file: str | Path | None = None) -> dict:
@@ -355,6 +386,7 @@ def config_problems(config: dict, schema_path: str | Path, check=None) -> list[s
         return [f"config error in fidelity: {config['fidelity']!r} is not one of {sorted(config['fidelities'])}. "
                 "Fix: add it under `fidelities` or pick an existing level (--config fidelity=smoke)"]
     for fname, fid in config["fidelities"].items():
+        out.extend(mach_factor_problems(fname, fid))
         for key in ("compare_with", "convergence_of"):  # levels that name another level
             other = fid.get(key)
             if other is not None and other not in config["fidelities"]:

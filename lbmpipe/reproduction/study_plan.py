@@ -148,6 +148,8 @@ def study_settings(config: dict, fidelity: str) -> dict:
     fid = config["fidelities"][fidelity]
     dx = float(fid["dx_mm"])
     dt_per_mm = float(fid["dt_s"]) / dx if "dt_s" in fid else float(fid.get("dt_per_mm_s", DT_PER_MM_S))
+    if "mach_factor" in fid:  # the level's Mach knob (cases.fidelity_numerics)
+        dt_per_mm *= float(fid["mach_factor"])
     num = fid.get("numerics", {}) or {}
     base = {"dx_mm": dx, "dt_factor": 1.0, "collision": num.get("collision", "bgk"),
             "wall": num.get("wall", "bounce_back"), "precision": num.get("precision", "float64")}

@@ -14,7 +14,8 @@ One algorithm a file
 - ``ladd``: Ladd's moving bounce-back and momentum exchange on the links, Eqs. (8)-(12);
 - ``implicit``: the implicit velocity update of the free particles;
 - ``remap``: cover and uncover after a move, with the momentum accounting;
-- ``refill``: the populations of an uncovered node;
+- ``refill``: the populations of an uncovered node (the paper's equilibrium); ``refill_extrapolated``:
+  with the neighbours' non-equilibrium stress (``numerics.refill``, ``remap.REFILLS``);
 - ``mass_correction``, ``flux_correction``: the mean fluid density, the mixture's flow rate;
 - ``wall_guard``: interpolated pipe walls beside particle nodes;
 - ``observables``: sums over the fluid nodes;
@@ -64,11 +65,12 @@ from .ladd import couple_free, fixed_fill
 from .mass_correction import MassCorrection
 from .nodes import FLUID, WALL
 from .phases import ParticlePhases, particle_effects
+from .remap import REFILLS
 from .system import ParticleSystem
 from .wall_guard import BouzidiParticleGuard
 
 __all__ = [
     "FLUID", "WALL", "BouzidiParticleGuard", "FixedParticles", "MassCorrection", "ParticleCoupling",
-    "ParticleFluxCorrection", "ParticleMotion", "ParticlePhases", "ParticleSystem", "couple_free", "fixed_fill",
+    "ParticleFluxCorrection", "ParticleMotion", "ParticlePhases", "ParticleSystem", "REFILLS", "couple_free", "fixed_fill",
     "particle_effects",
 ]

@@ -5,8 +5,9 @@ After a move, for each node whose owner changed:
 * a fluid node now covered by particle ``k`` leaves the fluid; its momentum ``j = sum_i f_i e_i``
   (post-collision) goes to ``k``: ``P_k += j``, ``L_P += r x j``;
 * a node of particle ``k`` that becomes fluid is refilled (``refill``: the equilibrium Eq. (3) at
-  the local surface velocity and its neighbours' density); the particle pays: ``P_k -= rho u_b``,
-  ``L_P -= r x rho u_b``;
+  the local surface velocity and its neighbours' density; or ``refill_extrapolated``, with the
+  neighbours' non-equilibrium stress: ``REFILLS``, the scene's ``numerics.refill``); the particle
+  pays the momentum written, ``j = rho u_b``: ``P_k -= j``, ``L_P -= r x j``;
 * a node passed from one particle to another holds no fluid: nothing is exchanged.
 
 ``(P, L_P)`` enters the next implicit update (``implicit``), so fluid + particles conserve total
@@ -32,6 +33,7 @@ from numba import njit
 from .links import set_owners
 from .nodes import FLUID, WALL, decode
 from .refill import fill_uncovered
+from .refill_extrapolated import fill_extrapolated
 
 
 class RemapState(NamedTuple):
@@ -215,10 +217,28 @@ def _uncovered_impulse(n_unc, unc_old, ub, imp, moved):
 
 
 @njit(cache=True)
-def apply_changes(ids, C, all_ids, R, x, v, om, owner, f2, lat, imp, moved, G, L, S):
+def _owners_and_covered(ids, C, all_ids, R, x, owner, f2, imp, moved, G, L, S):
+    # the phases before the refill: coverage counts, new owners, owner changes with their links
+    # and the covered impulses; returns (n_touched, n_covered, n_uncovered)
+    nt = _count_changes(ids, C, owner, S)
+    _settle_owners(nt, all_ids, R, owner, f2, S, G)
+    n_cov, n_unc = _change_owners(nt, x, owner, imp, moved, S, G, L)
+    return nt, n_cov, n_unc
+
+
+@njit(cache=True)
+def _uncovered_and_clear(nt, n_unc, imp, moved, S):
+    # the phases after the refill: the uncovered impulses, then the touched marks cleared
+    count, touched, acq, touch_list, unc_list, unc_old, new_own, jb, ub = S
+    _uncovered_impulse(n_unc, unc_old, ub, imp, moved)
+    for t in range(nt):
+        touched[touch_list[t]] = False
+
+
+def apply_changes(ids, C, all_ids, R, x, v, om, owner, f2, lat, imp, moved, G, L, S, refill=fill_uncovered):
     """Apply the coverage changes of a move and settle the owners (module docstring): momentum of
-    covered nodes to the particle, uncovered nodes refilled at the surface velocity, links updated
-    with each owner. ``moved`` (3,) receives the momentum that left the fluid. Returns
+    covered nodes to the particle, uncovered nodes refilled by ``refill``, links updated with each
+    owner. ``moved`` (3,) receives the momentum that left the fluid. Returns
     ``(n_covered, n_uncovered)``.
 
     Serial, in phases that keep the scattered accesses to ``f`` in tight loops of independent
@@ -228,6 +248,9 @@ def apply_changes(ids, C, all_ids, R, x, v, om, owner, f2, lat, imp, moved, G, L
     gained nothing measurable and cost much on a loaded machine (each parallel region waits for
     its slowest thread).
 
+    ``refill`` is the refill kernel the scene chose (``REFILLS``), called between two compiled
+    halves (a compiled function taking another as an argument is not cached by numba).
+
     Inputs: ``ids`` (M,) the moved particles and ``C`` (``RunChanges``) their changes; ``all_ids``
     (N,) every particle, fixed ones first (the tie-break order); ``R`` (``Runs``) the runs after
     the move; ``x``, ``v``, ``om`` (N, 3) centres (unwrapped, as the runs), velocities, lab angular
@@ -236,16 +259,16 @@ def apply_changes(ids, C, all_ids, R, x, v, om, owner, f2, lat, imp, moved, G, L
     ``G`` (``Grid``), ``L`` (``LinkLists``); ``S`` (``RemapState``). Outputs: ``S.count``,
     ``owner``, the link lists and their marks, ``f2`` of the uncovered nodes, ``imp``, ``moved``.
     Postconditions: every node's owner follows the rules above from the runs ``R``; ``S.touched``
-    all False and ``S.acq`` all -1 again."""
-    count, touched, acq, touch_list, unc_list, unc_old, new_own, jb, ub = S
-    nt = _count_changes(ids, C, owner, S)
-    _settle_owners(nt, all_ids, R, owner, f2, S, G)
-    n_cov, n_unc = _change_owners(nt, x, owner, imp, moved, S, G, L)
-    fill_uncovered(n_unc, unc_list, unc_old, x, v, om, owner, touched, f2, lat, ub, G)
-    _uncovered_impulse(n_unc, unc_old, ub, imp, moved)
-    for t in range(nt):
-        touched[touch_list[t]] = False
+    all False and ``S.acq`` all -1 again; the impulse of an uncovered node is the momentum the
+    refill wrote (``ub``)."""
+    nt, n_cov, n_unc = _owners_and_covered(ids, C, all_ids, R, x, owner, f2, imp, moved, G, L, S)
+    refill(n_unc, S.unc_list, S.unc_old, x, v, om, owner, S.touched, f2, lat, S.ub, G)
+    _uncovered_and_clear(nt, n_unc, imp, moved, S)
     return n_cov, n_unc
+
+
+#: the refill kernels by their scene name (``numerics.refill``), one signature (``refill``)
+REFILLS = {"equilibrium": fill_uncovered, "extrapolated": fill_extrapolated}
 
 
 @njit(cache=True)

@@ -27,6 +27,7 @@ from .ladd import BodyState, Loads, accumulate_loads, couple_free, fixed_fill
 from .links import LinkLists, clear_changed, mark_initial
 from .nodes import FLUID, WALL, Grid, LatticeRef, wrap_table
 from .observables import fluid_sums
+from .refill import fill_uncovered
 from .remap import RemapState, apply_changes, wrap_positions
 from .runs import RunChanges, Runs, compute_runs, diff_runs
 
@@ -143,6 +144,8 @@ class ParticleSystem:
         self.exch = np.zeros((n, 3))
         self.moved = np.zeros(3)
         self.last_cover = (0, 0)
+        # the refill kernel of uncovered nodes (``remap.REFILLS``; the assembly sets the scene's)
+        self.refill = fill_uncovered
         self._map_all()
         self.om[:] = omega_lab_arrays(bodies.q, bodies.wb)
         self.n_fluid = int(np.count_nonzero(self.owner == FLUID))
@@ -245,7 +248,8 @@ class ParticleSystem:
         # the drift turned wb with the body: the lab angular velocity for the surface velocities
         self.om[:] = omega_lab_arrays(b.q, b.wb)
         self.last_cover = apply_changes(ids, self.changes, self.all_ids, nxt, b.x, b.v, self.om, self.owner, f2,
-                                        self.lat, self.imp, self.moved, self.G, self.L, self.remap_state)
+                                        self.lat, self.imp, self.moved, self.G, self.L, self.remap_state,
+                                        self.refill)
         self.n_fluid -= self.last_cover[0] - self.last_cover[1]
         self._check_links()
         wrap_positions(ids, b.x, self.lo, self.G, nxt, self.L)
