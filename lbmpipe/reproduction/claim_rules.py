@@ -87,6 +87,24 @@ def _pm(v: float, c: float) -> str:
 # inputs
 
 
+def find_case(cases: dict, shape: str, size: tuple, concentration: float, reynolds: float,
+              collisions: bool = True) -> str | None:
+    """Config name of the case of ``cases`` with this description (size: (d, l) mm for a cylinder,
+    (edge,) for a cube), or None."""
+    for name, c in cases.items():
+        p = (c or {}).get("particles") or {}
+        if p.get("shape") != shape or not math.isclose(float(c["reynolds"]), reynolds):
+            continue
+        if not math.isclose(float(p.get("concentration", -1)), concentration):
+            continue
+        if bool(c.get("collisions", True)) != collisions:
+            continue
+        got = (float(p["diameter_mm"]), float(p["length_mm"])) if shape == "cylinder" else (float(p["edge_mm"]),)
+        if all(math.isclose(g, float(s)) for g, s in zip(got, size)) and len(got) == len(size):
+            return name
+    return None
+
+
 class Inputs:
     """The tables of one level, and case lookup by physical description."""
 
@@ -138,19 +156,8 @@ class Inputs:
             return None
 
     def find(self, shape: str, size: tuple, concentration: float, reynolds: float, collisions: bool = True) -> str | None:
-        """Config name of the case with this description (size: (d, l) mm for a cylinder, (edge,) for a cube)."""
-        for name, c in self.cases.items():
-            p = c.get("particles") or {}
-            if p.get("shape") != shape or not math.isclose(float(c["reynolds"]), reynolds):
-                continue
-            if not math.isclose(float(p.get("concentration", -1)), concentration):
-                continue
-            if bool(c.get("collisions", True)) != collisions:
-                continue
-            got = (float(p["diameter_mm"]), float(p["length_mm"])) if shape == "cylinder" else (float(p["edge_mm"]),)
-            if all(math.isclose(g, float(s)) for g, s in zip(got, size)) and len(got) == len(size):
-                return name
-        return None
+        """Config name of the case with this description (:func:`find_case`)."""
+        return find_case(self.cases, shape, size, concentration, reynolds, collisions)
 
     def _status_reason(self, name: str, status: str) -> str:
         s = health.read_json(self.fid_dir / "cases" / name / "summary.json") or {}

@@ -39,7 +39,7 @@ Beside each verdict (columns of ``claims.csv``):
   zero until measured). A shift can have either sign in each case, so it adds linearly: a
   difference ``a - b`` gets ``s_a + s_b``, and the pooled ``D`` the mean of those (a systematic
   error does not average down). ``robust``: ``yes`` when a decisive verdict holds with it, ``no``
-  when it does not, ``n/a`` for an inconclusive one;
+  when it does not, ``not applicable`` for an inconclusive one;
 - ``verdict_without_frozen_locked`` and ``verdict_without_flagged``: the verdict with the cases
   flagged frozen or locked (the dynamics the statistic describes are not there), and with every
   flagged case (frozen, locked or unhealthy), left out; ``left_out_*`` names them.
@@ -513,10 +513,10 @@ def claim14(inp: Inputs) -> Outcome:
             if a is not None and nc is not None else f"sensitivity, collisions off: {why_nc or why_a}")
     if r is None:
         out = Outcome(statistic=statistic, values=f"no comparison: the reference is not available; {sens}",
-                      carried="no comparison")
+                      carried="no comparison", deciding=f"reference not run ({ref or _desc(*REFERENCE_DESC)})")
         out.reason = (f"inputs missing: reference not run ({why_r}): the no-interaction reference of claim 14 has "
-                      f"no results at this level (`snakemake -c2 --config new_runs=all -- "
-                      f"{inp.fid_dir.as_posix()}/cases/{ref or '<reference case>'}/stats.json` runs it); the "
+                      f"no results at this level (`snakemake -c2 --config fidelity={inp.fid_dir.name} new_runs=all -- "
+                      f"results/{inp.fid_dir.name}/cases/{ref or '<reference case>'}/stats.json` runs it); the "
                       f"collisions-off run is a sensitivity and does not decide"
                       + (f"; missing: {why_a}" if why_a else ""))
         return out
@@ -554,7 +554,7 @@ def systematic_terms(config: dict | None = None) -> dict:
 
 def _robust(verdict: str, with_sys: str) -> str:
     if verdict == "inconclusive":
-        return "n/a"
+        return "not applicable"
     return "yes" if with_sys == verdict else "no"
 
 

@@ -32,6 +32,8 @@ from .document_sections import (DECISIONS, PAPER_CAPTIONS, case_rows, convergenc
                                 parameter_rows, read_table, runtime_section, stationarity_section, study_section,
                                 table_of)
 from .equations import check_links, equation_index, key_equations, other_equations, relative_href
+from .claim_rules import find_case
+from .claims import REFERENCE_DESC
 from .figures import figure_cases
 from .profile_error import read_profile_error
 from .snapshots import snapshot_gallery
@@ -210,14 +212,15 @@ def abstract_section(fid_dir: Path, fidelity: str, config: dict, claims, params:
 def _figure_case_names(key: str, av, config: dict) -> list[str]:
     """Cases a figure shows, by their metadata in ``angular_velocity.csv`` (the selections of
     :data:`lbmpipe.reproduction.figures.FIGURE_CASES`); Fig. 10 adds the particle-free flow, the figure
-    of claim 14 the cases with collisions off."""
+    of claim 14 its dilute reference and the cases with collisions off."""
     names = figure_cases(av, key) if av is not None else []
     if key == "10":
         names += [n for n, c in (config.get("cases") or {}).items()
                   if not (c or {}).get("particles") and float((c or {}).get("reynolds", 0)) == 26.0]
-    if 14 in FIGURE_CLAIMS.get(key, []):  # claim 14 compares with the same packing, collisions off
-        names += [n for n, c in (config.get("cases") or {}).items()
-                  if (c or {}).get("particles") and (c or {}).get("collisions") is False]
+    if 14 in FIGURE_CLAIMS.get(key, []):  # claim 14: its dilute reference, and the collisions-off sensitivity
+        ref = find_case(config.get("cases") or {}, *REFERENCE_DESC)
+        names += ([ref] if ref else []) + [n for n, c in (config.get("cases") or {}).items()
+                                           if (c or {}).get("particles") and (c or {}).get("collisions") is False]
     return list(dict.fromkeys(names))
 
 
@@ -260,7 +263,7 @@ def figure_sections(fid_dir: Path, out_dir: Path, config: dict, claims_rows: lis
             if h is None:
                 continue
             if h["status"] not in ("completed",):
-                why.append(f"`{n}` {h['status']}")
+                why.append(f"`{n}` {h['status']}" + (f", {h['flags']}" if h["flags"] not in ("none", "") else ""))
             elif h["flags"] not in ("none", ""):
                 why.append(f"`{n}` {h['flags']}" + (f" ({h['issues']})" if h["issues"] else ""))
             if h.get("frozen") == "not computed":
