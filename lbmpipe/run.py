@@ -20,6 +20,7 @@ from . import checkpoint as ckpt
 from . import outputs
 from .assemble import simulation_from_scene
 from .fields import FieldWriter
+from .compile_clock import CLOCK
 from .fluid import observables as obs
 from .particles import placement
 from .profiles import PlaneProfile
@@ -180,19 +181,33 @@ class FieldSamples(Reporter):
 
 
 class Progress(Reporter):
-    """The progress bar: steps done, simulated time and throughput."""
+    """The progress bar: steps done, simulated time and throughput (the time spent compiling
+    kernels left out); "compiling kernels" while numba compiles (``compile_clock``)."""
+
+    COMPILING = "compiling kernels"
 
     def __init__(self, n_steps: int, units, n_fluid: int, enabled: bool):
         self.bar = outputs.progress_bar(n_steps, units.dt_s, n_fluid, enabled=enabled)
-        self.dt_s, self.n_fluid, self.t0 = units.dt_s, n_fluid, time.perf_counter()
+        self.dt_s, self.n_fluid = units.dt_s, n_fluid
+        self.start()
+        self.text = ""
+
+    def start(self) -> None:
+        """The throughput counts from now, and the compilations from now on are left out of it."""
+        self.t0, self.c0 = time.perf_counter(), CLOCK.seconds
 
     def advanced(self, sim, steps):
         self.bar.update(steps)
 
     def sample(self, sim, sample):
-        elapsed = time.perf_counter() - self.t0
-        self.bar.set_postfix_str(outputs.progress_text(sim.step_count, self.dt_s, self.n_fluid, elapsed))
+        elapsed = time.perf_counter() - self.t0 - (CLOCK.seconds - self.c0)
+        self.text = outputs.progress_text(sim.step_count, self.dt_s, self.n_fluid, elapsed)
+        self.bar.set_postfix_str(self.text)
         return None
+
+    def compiling(self, now: bool) -> None:
+        """``CompileClock.watch`` callback: say so while kernels compile, then the last throughput."""
+        self.bar.set_postfix_str(self.COMPILING if now else self.text)
 
 
 class CheckpointWriter(Reporter):
@@ -318,7 +333,7 @@ def run_scene(scene, params, out_dir: Path, progress: bool = True, max_steps: in
     """
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
-    t_build = time.perf_counter()
+    t_build = (time.perf_counter(), CLOCK.seconds)
     # Ctrl-C from here on (the set-up compiles for minutes on a cold cache) ends the run as
     # interrupted, with its summary, instead of killing it with nothing written; SIGTERM is caught
     # from the time loop on (a batch system's kill before it leaves no checkpoint to resume)
@@ -351,16 +366,21 @@ def _run_scene(scene, params, out_dir, progress, max_steps, checkpoint, checkpoi
     bar = Progress(n_steps, units, grid.n_fluid, progress)
     if sim.step_count:
         bar.bar.update(min(sim.step_count, n_steps))
-    # The first sweep compiles or loads the kernels; keep that out of the MLUPS figure.
-    sim.step(0)
-    run.t0 = bar.t0 = time.perf_counter()
+    # Kernels compile at their first call (a cold cache: minutes, in the first steps and at the
+    # first collision): the compile clock keeps that time out of the effects' timers and MLUPS.
+    bar.start()
+    run.t0 = bar.t0
+    compile0 = CLOCK.seconds
     if writer is not None:
         writer.last = run.t0
-    setup_seconds = run.t0 - t_build
+    setup_seconds = run.t0 - t_build[0]
     reporters = [*([fields] if fields else []), FiniteState(), run.flow, *([run.particles] if run.particles else []),
                  profile, *([run.planes] if run.planes else []), bar, *([writer] if writer else [])]
-    outcome = run_loop(sim, n_steps, every, reporters, stop_at_step=stop_at_step, interrupt=early)
+    with CLOCK.watch(bar.compiling):
+        outcome = run_loop(sim, n_steps, every, reporters, stop_at_step=stop_at_step, interrupt=early)
     wall = run.wall()
+    compile_seconds = CLOCK.seconds - compile0
+    stepping = wall - compile_seconds
     bar.bar.close()
     status, message = outcome.status, outcome.message
     if outcome.error is not None and checkpoint is not None and Path(checkpoint).exists():
@@ -375,7 +395,10 @@ def _run_scene(scene, params, out_dir, progress, max_steps, checkpoint, checkpoi
         "simulated_seconds": sim.step_count * units.dt_s,
         "wall_seconds": wall,
         "setup_seconds": setup_seconds,
-        "mlups": grid.n_fluid * sim.step_count / wall / 1e6 if wall > 0 else 0.0,
+        # numba compilations during the time loop (out of the effects' timers and MLUPS) and the set-up
+        "compile_seconds": compile_seconds,
+        "setup_compile_seconds": compile0 - t_build[1],
+        "mlups": grid.n_fluid * sim.step_count / stepping / 1e6 if stepping > 0 else 0.0,
         "threads": numba.get_num_threads(),
         "fluid_nodes": grid.n_fluid,
         "mass_drift_rel": (mass1 - mass0) / mass0 if math.isfinite(mass1) else float("nan"),

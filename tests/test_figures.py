@@ -246,7 +246,31 @@ def test_orientation_figures_draw_the_isotropic_fraction_of_each_plotted_bin(tmp
     axis = S.isotropic_bin_fractions("cube_axis_angle", np.linspace(0, S.CUBE_MAX_AXIS_ANGLE_DEG, 10))
     assert np.allclose(projected, 1 / 9)
     assert cube == {round(projected[0], 6), round(axis[0], 6)}
-    assert "1/9" in drawn["fig9_cube_orientation"]["text"]
+    # one legend entry for the isotropic reference of both angles (a legend entry is a Text in a TextArea)
+    assert drawn["fig9_cube_orientation"]["text"].count("isotropic") == 2
+
+
+def test_fig9_intervals_of_a_fraction_lie_in_0_1_and_an_empty_bin_of_a_locked_case_keeps_a_width(tmp_path, drawn):
+    # a case locked in two bins across its packings: 0.53 +- 1.62 and 0.47 +- 1.6, empty bins +- 0
+    frac = np.array([0.533, 0.467] + [0.0] * 7)
+    ci = np.array([1.62, 1.60] + [0.0] * 7)
+    err = F._fraction_errors(frac, ci)
+    lo, hi = frac - err[0], frac + err[1]
+    assert (lo >= 0).all() and (hi <= 1).all()
+    assert (hi[2:] > 0.3).all()  # an empty bin of a case with almost no independent samples: wide, not zero
+    # a well-measured histogram keeps intervals close to its own half-widths
+    frac = np.full(9, 1 / 9)
+    err = F._fraction_errors(frac, np.full(9, 0.01))
+    assert np.allclose(err, 0.01, rtol=0.05)
+    fid = tmp_path / "smoke"
+    _synthetic_tables(fid)
+    t = pd.read_csv(fid / "tables" / "orientation.csv")
+    locked = (t["size_label"] == "24 mm") & (t["reynolds"] == 9.4)
+    t.loc[locked, "fraction"] = np.where(t.loc[locked, "bin_lo_deg"] == 0.0, 1.0, 0.0)
+    t.loc[locked, "ci95"] = np.where(t.loc[locked, "bin_lo_deg"] == 0.0, 1.5, 0.0)
+    F.cube_orientation(t, fid / "figures" / "fig9_cube_orientation")
+    assert all(y[1] <= 1.15 + 1e-9 for y in drawn["fig9_cube_orientation"]["ylims"])
+    assert "Wilson" in drawn["fig9_cube_orientation"]["text"]
 
 
 def test_a_cube_case_locked_in_one_bin_does_not_flatten_the_other_sizes_in_fig9(tmp_path, drawn):

@@ -284,3 +284,120 @@ def test_claims_summary_counts_missing_and_flagged_cases_not_the_clauses_of_thei
     rows = claims_summary(pd.DataFrame([{"claim": 1, "statement": "s", "verdict": "reproduced",
                                          "values": "pooled D = 1", "reason": reason}]))
     assert rows[0]["reason"] == "the pooled 95 % interval excludes 0 (1 case missing; 2 cases flagged)"
+
+
+# --------------------------------------------------------------------------------------------------
+# numbers the document prints (issue 46, item 4)
+
+
+def test_claims_summary_prints_the_accurate_methods_verdict_the_deciding_number_and_what_carries_it():
+    from lbmpipe.reproduction.literate import claims_summary
+
+    base = {"statement": "s", "values": "pooled D = 0.1 ± 0.09 over 9; first comparison", "reason": "r",
+            "carried_by": "1 of 9 significant in the claimed direction, 0 reversed",
+            "verdict_without_frozen_locked": "reproduced", "verdict_without_flagged": "inconclusive",
+            "robust": "yes"}
+    rows = claims_summary(pd.DataFrame([
+        {**base, "claim": 3, "verdict": "reproduced", "deciding": "pooled D = 0.1 ± 0.09 rad/s",
+         "verdict_paper_method_seed1": "inconclusive", "verdict_accurate_method_seed1": "inconclusive",
+         "same_under_both_methods": "yes"},
+        {**base, "claim": 12, "verdict": "inconclusive", "deciding": "b vs a: d = 2 [-5, 9] deg against ±4.5",
+         "verdict_paper_method_seed1": "reproduced", "verdict_accurate_method_seed1": "inconclusive",
+         "same_under_both_methods": "no"},
+        {**base, "claim": 14, "verdict": "inconclusive", "deciding": "", "verdict_paper_method_seed1": "inconclusive",
+         "verdict_accurate_method_seed1": "inconclusive", "same_under_both_methods": "not compared"}]))
+    # the accurate method's own verdict, never the paper method's seed-1 one
+    assert rows[0]["method"].startswith("inconclusive (paper method on the same packing: the same)")
+    assert rows[1]["method"] == "inconclusive (paper method on the same packing: reproduced)"
+    assert rows[2]["method"].startswith("none:")
+    assert rows[1]["number"] == "b vs a: d = 2 [-5, 9] deg against ±4.5"
+    assert rows[0]["carried"] == "1 of 9 significant in the claimed direction, 0 reversed"
+    assert rows[0]["without"] == "reproduced / inconclusive" and rows[0]["robust"] == "yes"
+
+
+def test_claims_changed_by_the_method_read_as_a_count_with_their_numbers():
+    assert document_sections.changed_text([]) == "none"
+    assert document_sections.changed_text([12]) == "1 claim (claim 12)"
+    assert document_sections.changed_text([3, 12]) == "2 claims (claims 3, 12)"
+
+
+def _profile(d: Path, u, u_ref, summary: dict):
+    import json
+
+    import numpy as np
+
+    d.mkdir(parents=True, exist_ok=True)
+    r = np.linspace(0.5, 24.5, len(u))
+    pd.DataFrame({"r_mm": r, "uz_m_s": u, "uz_poiseuille_m_s": u_ref, "nodes": np.round(8 * r)}).to_csv(
+        d / "profile.csv", index=False)
+    (d / "summary.json").write_text(json.dumps(summary))
+
+
+def test_abstract_claim13_and_fig10_print_one_particle_free_baseline_and_the_particle_cases_distance(tmp_path):
+    import numpy as np
+
+    from lbmpipe.reproduction.profile_error import read_profile_error
+
+    r = np.linspace(0.5, 24.5, 25)
+    par = 0.32 * (1 - (r / 25.0) ** 2)
+    cases = {"flow_re26": {"reynolds": 26}, claims.PROFILE_CASE: {
+        "reynolds": 26, "particles": {"shape": "cylinder", "diameter_mm": 16, "length_mm": 16, "concentration": 0.3}}}
+    # the run's own summary holds another (unweighted) distance: the document must not print it
+    _profile(tmp_path / "cases" / "flow_re26", par * (1 + 0.02 * (r / 25) ** 4), par,
+             {"status": "completed", "profile_error_rel_l2": 0.00123})
+    # a case combined over packings: its summary has no distance of its own
+    _profile(tmp_path / "cases" / claims.PROFILE_CASE, np.where(r < 20, 0.2, 0.2 * (25 - r) / 5), par,
+             {"status": "completed"})
+    e0 = read_profile_error(tmp_path / "cases" / "flow_re26" / "profile.csv")
+    abstract = literate.abstract_section(tmp_path, "x", {"cases": cases}, None, [], literate._case_dirs(
+        tmp_path, {"cases": cases}), [])
+    assert abstract["poiseuille"] == f"Re 26: {document_sections.fmt(e0)}"
+    row = claims.evaluate_claims(tmp_path, cases).set_index("claim").loc[13]
+    assert f"e0 = {e0:.3g}" in row["values"]
+    (tmp_path / "tables").mkdir()
+    pd.DataFrame([{"case": claims.PROFILE_CASE, "shape": "cylinder", "size_label": "16x16 mm", "concentration": 0.3,
+                   "reynolds": 26.0, "collisions": True, "status": "completed",
+                   **{f"{q}_{a}": 0.1 for q in ("omega", "ci") for a in "xyz"}}]).to_csv(
+        tmp_path / "tables" / "angular_velocity.csv", index=False)
+    sec = literate.figure_sections(tmp_path, tmp_path, {"cases": cases}, [], literate._case_dirs(
+        tmp_path, {"cases": cases}), [])
+    fig10 = next(s for s in sec if s["key"] == "10")["numbers"]
+    d = read_profile_error(tmp_path / "cases" / claims.PROFILE_CASE / "profile.csv")
+    assert f"`{claims.PROFILE_CASE}`: relative L2 difference from the Hagen-Poiseuille parabola " \
+           f"{document_sections.fmt(d)}" in fig10
+    assert f"`flow_re26`: relative L2 difference from the Hagen-Poiseuille parabola {document_sections.fmt(e0)}" \
+        in fig10
+
+
+def test_combined_case_summary_carries_its_profiles_distance_from_the_parabola(tmp_path):
+    import json
+
+    import numpy as np
+
+    from lbmpipe.reproduction import seeds
+    from lbmpipe.reproduction.profile_error import profile_error
+
+    r = np.linspace(0.5, 24.5, 25)
+    par = 0.32 * (1 - (r / 25.0) ** 2)
+    case = tmp_path / "c"
+    for k, scale in ((1, 0.9), (2, 1.1)):
+        _profile(case / f"seed{k}", par * scale, par, {"status": "completed"})
+        (case / f"seed{k}" / "stats.json").write_text(json.dumps({"status": "completed", "samples": 10}))
+    seeds.write_combined("c", case, [1, 2])
+    summary = json.loads((case / "summary.json").read_text())
+    assert summary["profile_error_rel_l2"] == pytest.approx(profile_error(pd.read_csv(case / "profile.csv")))
+
+
+def test_run_health_of_a_case_with_an_unstable_packing_says_so_not_completed(tmp_path):
+    import json
+
+    from lbmpipe.reproduction import health
+
+    case = tmp_path / "c"
+    case.mkdir()
+    (case / "stats.json").write_text(json.dumps({
+        "status": "completed", "seed_status": {"1": "completed", "2": "completed", "3": "unstable"},
+        "seeds": [], "health": {"issues": ["seed 3: status unstable"]}, "flags": ["unhealthy"]}))
+    (case / "summary.json").write_text(json.dumps({"status": "unstable", "message": "seed 3: unstable"}))
+    row = health.health_row("c", case, health.thresholds()["health"])
+    assert row["status"] == "unstable (seed 3: unstable)"

@@ -343,12 +343,22 @@ def method_comparison_section(fid_dir: Path, fidelity: str, config: dict, out_di
             "omega_median_pct": fmt(100 * _num(summ.get("omega_median_abs_rel_diff"))),
             "angle_compared": summ.get("angle_compared", 0), "angle_significant": summ.get("angle_significant", 0),
             "flows": flows, "claims_compared": summ.get("claims_compared", 0),
-            "claims_changed": ", ".join(str(c) for c in summ.get("claims_changed", [])) or "none",
+            "claims_changed": changed_text(summ.get("claims_changed", [])),
             "claims": table_of(claims[compared], ["claim", "verdict", "verdict_paper_method_seed1",
                                                    "verdict_accurate_method_seed1", "same_under_both_methods"])
             if compared is not None and compared.any() else None,
             "runs": table_of(runs, ["run", "observable", "paper", "paper_ci95", "accurate", "accurate_ci95", "rel_diff",
                                     "significant"]) if runs is not None and len(runs) else None}
+
+
+def changed_text(claims: list) -> str:
+    """The claims whose verdict the method changes, as a count with their numbers: ``none``,
+    ``1 claim (claim 12)``, ``2 claims (claims 3, 12)``."""
+    claims = [int(c) for c in claims]
+    if not claims:
+        return "none"
+    nums = ", ".join(map(str, claims))
+    return f"1 claim (claim {nums})" if len(claims) == 1 else f"{len(claims)} claims (claims {nums})"
 
 
 def convergence_section(fid_dir: Path, fidelity: str, config: dict, out_dir: Path) -> dict | None:

@@ -24,6 +24,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from .fractions import histogram_interval
 from .statistics import isotropic_bin_fractions
 from .plotting import STYLE, plt, save  # noqa: F401  (STYLE: the style every figure is drawn in)
 
@@ -61,7 +62,8 @@ FIGURE_CAPTIONS = {
     "fig8_cylinder_orientation": (
         "Distribution of the angle between the cylinder axis and the pipe axis (deg; fraction of particle-samples "
         "after spin-up per 10 deg bin) for the four cylinder sizes at 30 % concentration, Re 9.4 and Re 26; "
-        "error bars are 95 % batch-means confidence half-widths of the per-sample bin fraction. Black dashes: the "
+        "error bars are 95 % Wilson score intervals of the bin fraction on the case's effective sample size (from "
+        "its batch-means half-widths; lbmpipe.reproduction.fractions), inside [0, 1]. Black dashes: the "
         "fraction a uniformly random (isotropic) orientation puts in each bin, 1 - cos θ integrated over the bin. "
         "The paper's experimental distribution (its Fig. 8b, Zitoun et al. 2001) is not available to us and is not "
         "drawn; hatched bars mark a flagged case (flag named in the legend)."),
@@ -70,7 +72,8 @@ FIGURE_CAPTIONS = {
         "case locked in one bin does not flatten the others): left pair, the in-image angle of the cube "
         "projected on the x-z plane (camera along y) folded into 0-45 deg, as a camera sees it, at Re 9.4 and "
         "Re 26; right pair, the 3-D angle between the pipe axis and the nearest cube axis (0-54.7 deg); fractions "
-        "per bin with 95 % batch-means half-widths. Black dashes: a uniformly random (isotropic) orientation, "
+        "per bin with 95 % Wilson score intervals on the case's effective sample size (inside [0, 1], wide in an empty "
+        "bin of a case with few independent samples). Black dashes: a uniformly random (isotropic) orientation, "
         "which gives the projected angle uniformly (1/9 per 5 deg bin) and the 3-D angle its closed-form bin "
         "fractions. The paper's experimental distribution (its Fig. 9b, Zitoun et al. 2001) is not available to us "
         "and is not drawn; a flagged case has hatched bars and its flag in the panel title."),
@@ -248,7 +251,7 @@ def _mark(ax, x, text, y=None):
 
 
 def _bars(ax, groups: list[str], series: list[tuple], width=None, hatches=None):
-    """Grouped bars: ``series`` = (label, values (G,), errors (G,), marks (G,) text or None[,
+    """Grouped bars: ``series`` = (label, values (G,), errors (G,) or (2, G) below/above, marks (G,) text or None[,
     flags (G,) list of flag names or None]). A flagged bar is hatched and its flags join the label."""
     n = len(series)
     width = width or 0.8 / max(n, 1)
@@ -257,7 +260,8 @@ def _bars(ax, groups: list[str], series: list[tuple], width=None, hatches=None):
     for k, (label, vals, errs, marks, *rest) in enumerate(series):
         flags = rest[0] if rest else [None] * len(groups)
         xs = x0 + (k - (n - 1) / 2) * width
-        yerr = np.where(np.isfinite(errs), errs, 0.0)
+        yerr = np.where(np.isfinite(errs), errs, 0.0)  # (G,) symmetric or (2, G) below/above
+        up = yerr[-1] if yerr.ndim == 2 else yerr
         bad = [m for m in marks if m and m != "not in study"]
         lab = label if not bad else f"{label} ({', '.join(sorted(set(bad)))})"
         lab = _flagged(lab, list(dict.fromkeys(f for fl in flags if fl for f in fl)))
@@ -268,10 +272,12 @@ def _bars(ax, groups: list[str], series: list[tuple], width=None, hatches=None):
             if fl:
                 patch.set_hatch(FLAG_HATCH)
         pending += [(x, m) for x, m in zip(xs, marks) if m]
-        flag_text += [(x, y, ", ".join(fl)) for x, y, fl in zip(xs, np.nan_to_num(vals) + yerr, flags)
+        flag_text += [(x, y, ", ".join(fl)) for x, y, fl in zip(xs, np.nan_to_num(vals) + up, flags)
                       if fl and len(groups) > 1 and len(set(map(tuple, (f or () for f in flags)))) > 1]
     ax.set_xticks(x0, groups)
-    tops = [np.nanmax(np.where(np.isfinite(e), v + e, v)) for _, v, e, *_ in series if np.isfinite(v).any()]
+    tops = [np.nanmax(np.where(np.isfinite(np.asarray(e)[-1] if np.ndim(e) == 2 else e),
+                               v + (np.asarray(e)[-1] if np.ndim(e) == 2 else e), v))
+            for _, v, e, *_ in series if np.isfinite(v).any()]
     top = max(tops) if tops else 0.0
     ax.set_ylim(0.0, 1.3 * top if top > 0 else 1.0)  # head-room for the legend
     for x, m in pending:
@@ -341,13 +347,27 @@ def shape_size_bars(table, reynolds: float, stem: Path, title: str = "", concent
 # ----------------------------------------------------------------------------------------------
 # orientation histograms (Figs. 8, 9)
 
+#: The legend entry of the isotropic reference (one per figure).
+ISOTROPIC_LABEL = "isotropic (random orientation)"
+#: The legend entry of a histogram's bars and their intervals (Figs. 8-9).
+INTERVAL_LABEL = "95 % Wilson interval on the effective sample size"
+
+
+def _fraction_errors(frac: np.ndarray, ci: np.ndarray) -> np.ndarray:
+    """(2, G) error bars below and above each bin fraction: its Wilson interval on the case's
+    effective sample size (:mod:`lbmpipe.reproduction.fractions`), inside [0, 1]; none (0) without one."""
+    lo, hi, _ = histogram_interval(frac, ci)
+    f = np.nan_to_num(frac)
+    return np.nan_to_num(np.vstack([f - lo, hi - f]), nan=0.0).clip(min=0.0)
+
+
 def _reference(ax, kind: str, edges: np.ndarray, x: np.ndarray, half: float) -> float:
     """Draw, as black dashes over each bin at positions ``x``, the fraction a uniformly random
     orientation puts in the bins ``edges`` of ``kind``; return the largest."""
     ref = isotropic_bin_fractions(kind, edges)
-    label = ("isotropic: uniform, 1/{} per bin".format(len(ref)) if np.allclose(ref, ref[0])
-             else "isotropic (random orientation)")
-    ax.hlines(ref, x - half, x + half, colors="k", linestyles=(0, (3, 1.5)), linewidth=1.2, label=label, zorder=3)
+    # one legend entry whatever the kind (uniform for the projected cube angle, the closed form otherwise)
+    ax.hlines(ref, x - half, x + half, colors="k", linestyles=(0, (3, 1.5)), linewidth=1.2,
+              label=ISOTROPIC_LABEL, zorder=3)
     return float(np.max(ref))
 
 
@@ -383,8 +403,8 @@ def _hist_panel(ax, table: pd.DataFrame, kind: str, series: list[tuple[str, dict
         if not rows.empty and edges is None:
             edges = np.append(rows.bin_lo_deg.to_numpy(float), rows.bin_hi_deg.to_numpy(float)[-1])
         if ok:
-            data.append((label, rows["fraction"].to_numpy(float), rows["ci95"].to_numpy(float),
-                         case_flags(rows.iloc[0])))
+            frac = rows["fraction"].to_numpy(float)
+            data.append((label, frac, _fraction_errors(frac, rows["ci95"].to_numpy(float)), case_flags(rows.iloc[0])))
         else:
             why = "not run" if rows.empty else status_text(status)
             data.append((label, None, why, []))
@@ -398,7 +418,7 @@ def _hist_panel(ax, table: pd.DataFrame, kind: str, series: list[tuple[str, dict
         if frac is None:
             series_bars.append((label, np.full(g, np.nan), np.full(g, np.nan), [None] * g))
         else:
-            series_bars.append((label, frac[:g], ci[:g], [None] * g, [flags or None] * g))
+            series_bars.append((label, frac[:g], ci[:, :g], [None] * g, [flags or None] * g))
     _bars(ax, groups, series_bars)
     ref_top = _reference(ax, kind, edges, np.arange(g), 0.45)
     # legend labels of marked cases carry their status
@@ -445,12 +465,13 @@ def _case_hist(ax, table: pd.DataFrame, kind: str, crit: dict, hi: float, color:
     x = np.arange(len(edges) - 1)
     top, flags = 0.0, []
     if ok:
-        frac, ci = rows["fraction"].to_numpy(float), rows["ci95"].to_numpy(float)
+        frac = rows["fraction"].to_numpy(float)
+        err = _fraction_errors(frac, rows["ci95"].to_numpy(float))
         flags = case_flags(rows.iloc[0])
-        ax.bar(x, np.nan_to_num(frac), 0.85, yerr=np.where(np.isfinite(ci), ci, 0.0), color=color,
+        ax.bar(x, np.nan_to_num(frac), 0.85, yerr=err, color=color,
                edgecolor="k", linewidth=0.4, error_kw={"elinewidth": 0.8}, hatch=FLAG_HATCH if flags else None,
-               label="this case (95 % CI)")
-        top = float(np.nanmax(frac + np.where(np.isfinite(ci), ci, 0.0)))
+               label=f"this case ({INTERVAL_LABEL})")
+        top = float(np.nanmax(np.nan_to_num(frac) + err[1]))
     else:
         ax.text(0.5, 0.6, "not run" if rows.empty else status_text(status), transform=ax.transAxes,
                 ha="center", va="center", fontsize=9, color="0.3", style="italic")

@@ -6,7 +6,9 @@ The thresholds are stated once, in the ``diagnostics:`` block of ``config.yaml``
 
 Run health of a case (:func:`run_health`), from its ``summary.json`` and ``flow_rate.csv``:
 
-- ``status``: the run's status (anything but ``completed`` is unhealthy);
+- ``status``: the run's status (anything but ``completed`` is unhealthy); a case combined over
+  packings shows its ``summary.json``'s, naming the packings that did not complete
+  (:func:`combined_status`);
 - ``mass_floor_rel``: mass added by the density floor, relative to the initial mass;
 - ``mass_drift_rel``: the run's relative drift of the mean fluid density (mass per fluid node,
   ``summary.json``'s ``density_drift_rel``; without particles, or in a summary that predates it,
@@ -199,6 +201,16 @@ def case_flags(stats: dict) -> list[str]:
     return flags
 
 
+def combined_status(stats: dict, summary: dict | None) -> str:
+    """The status of a case combined over packings: its ``summary.json``'s (``completed`` only when
+    every packing completed; an unstable packing makes the case ``unstable``), with the packings
+    that did not complete named (``unstable (seed 3: unstable)``). The statistics' own status says
+    ``completed`` as soon as one packing did, which hides the packing that failed."""
+    status = str((summary or {}).get("status") or stats.get("status", "not run"))
+    bad = [f"seed {k}: {v}" for k, v in (stats.get("seed_status") or {}).items() if v != "completed"]
+    return f"{status} ({'; '.join(bad)})" if status != "completed" and bad else status
+
+
 def _fmt_bool(d, key: str):
     return "" if not isinstance(d, dict) or key not in d else bool(d[key])
 
@@ -211,7 +223,8 @@ def health_row(case: str, case_dir: Path, limits: dict) -> dict:
     if isinstance(stats.get("seeds"), list) and isinstance(stats.get("health"), dict):
         # a case combined over packings (lbmpipe.reproduction.seeds): its seeds' worst health
         h = {k: _num(stats["health"].get(k)) for k in HEALTH_COLUMNS[2:HEALTH_COLUMNS.index("frozen")]}
-        h.update(status=stats.get("status", "not run"), issues=list(stats["health"].get("issues") or []))
+        h.update(status=combined_status(stats, read_json(case_dir / "summary.json")),
+                 issues=list(stats["health"].get("issues") or []))
     else:
         h = run_health(read_json(case_dir / "summary.json"), read_flow_rate(case_dir), limits)
     flags = [f for f in case_flags(stats) if f != "unhealthy"] + (["unhealthy"] if h["issues"] else [])

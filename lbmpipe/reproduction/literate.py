@@ -32,7 +32,10 @@ from .document_sections import (DECISIONS, PAPER_CAPTIONS, case_rows, convergenc
                                 parameter_rows, read_table, runtime_section, stationarity_section, study_section,
                                 table_of)
 from .equations import check_links, equation_index, key_equations, other_equations, relative_href
+from .claim_rules import find_case
+from .claims import REFERENCE_DESC
 from .figures import figure_cases
+from .profile_error import read_profile_error
 from .snapshots import snapshot_gallery
 from .webpage import markdown_to_html
 
@@ -126,18 +129,26 @@ def _short_reason(reason: str) -> tuple[str, int, int]:
 
 
 def _method_cell(r: dict) -> str:
-    """``same``, ``changes: <paper> -> <accurate>`` or ``not compared`` (seed-1 verdicts)."""
+    """The verdict under the accurate method (packing seed 1) and how it stands against the paper
+    method's on the same packing, or why there is none."""
     same = str(r.get("same_under_both_methods"))
+    acc, paper = r.get("verdict_accurate_method_seed1"), r.get("verdict_paper_method_seed1")
     if same == "yes":
-        return f"same ({r.get('verdict_paper_method_seed1')})"
+        return f"{acc} (paper method on the same packing: the same)"
     if same == "no":
-        return f"changes: {r.get('verdict_paper_method_seed1')} -> {r.get('verdict_accurate_method_seed1')}"
-    return "not compared"
+        return f"{acc} (paper method on the same packing: {paper})"
+    return "none: the claim's inputs are missing under one of the methods (packing 1)"
+
+
+def _text(r: dict, key: str, default: str = "") -> str:
+    v = r.get(key)
+    return default if v is None or (isinstance(v, float) and math.isnan(v)) else str(v)
 
 
 def claims_summary(claims) -> list[dict]:
-    """One row per claim: number, statement, verdict, the deciding number (the first clause of
-    ``values``: the pooled difference or the single comparison) and the reason, shortened."""
+    """One row per claim: number, statement, verdict, how many comparisons carry it, the verdicts
+    without the flagged cases and with the systematic term, the deciding number (``claims.csv``'s
+    ``deciding``: the pooled difference, or the deciding comparison or bin) and the reason, shortened."""
     rows = []
     for r in claims.to_dict("records"):
         reason, n_missing, n_flagged = _short_reason(r.get("reason", ""))
@@ -145,10 +156,13 @@ def claims_summary(claims) -> list[dict]:
                                                                              (n_flagged, "flagged")) if n]
         if counts:
             reason += f" ({'; '.join(counts)})"
+        number = _text(r, "deciding") or str(r.get("values", "")).split("; ")[0].split(" over ")[0]
         rows.append({"claim": fmt(r["claim"]), "statement": str(r.get("statement", "")),
-                     "verdict": str(r.get("verdict", "")),
-                     "number": str(r.get("values", "")).split("; ")[0].split(" over ")[0],
-                     "reason": reason,
+                     "verdict": str(r.get("verdict", "")), "carried": _text(r, "carried_by", "–"),
+                     "without": (f"{_text(r, 'verdict_without_frozen_locked', '–')} / "
+                                 f"{_text(r, 'verdict_without_flagged', '–')}"),
+                     "robust": _text(r, "robust", "–"),
+                     "number": number, "reason": reason,
                      # the verdict under the accurate method (seed 1), where a level compares with this one
                      "method": _method_cell(r) if "same_under_both_methods" in r else None})
     return rows
@@ -161,10 +175,10 @@ def abstract_section(fid_dir: Path, fidelity: str, config: dict, claims, params:
     counts = claims["verdict"].value_counts().to_dict() if claims is not None and "verdict" in claims else {}
     particle = [n for n, c in (config.get("cases") or {}).items() if (c or {}).get("particles")]
     flow = [n for n, c in (config.get("cases") or {}).items() if not (c or {}).get("particles")]
-    poiseuille = [f"{fmt((config['cases'][n] or {}).get('reynolds'))}: "
-                  f"{fmt(cases[n]['summary'].get('profile_error_rel_l2'))}"
-                  for n in flow if cases.get(n, {}).get("summary")
-                  and cases[n]["summary"].get("profile_error_rel_l2") is not None]
+    # the particle-free baseline, as claim 13 and Fig. 10 compute it (one function, profile_error)
+    errors = {n: read_profile_error(Path(fid_dir) / "cases" / n / "profile.csv") for n in flow}
+    poiseuille = [f"{fmt((config['cases'][n] or {}).get('reynolds'))}: {fmt(e)}" for n, e in errors.items()
+                  if math.isfinite(e)]
     avg = [averaging_s(cases[n]["summary"], cases[n]["stats"]) for n in particle if n in cases]
     avg = [a for a in avg if math.isfinite(a)]
     seeds = [int(s["n_seeds"]) for n in particle for s in [cases.get(n, {}).get("stats") or {}] if "n_seeds" in s]
@@ -198,14 +212,15 @@ def abstract_section(fid_dir: Path, fidelity: str, config: dict, claims, params:
 def _figure_case_names(key: str, av, config: dict) -> list[str]:
     """Cases a figure shows, by their metadata in ``angular_velocity.csv`` (the selections of
     :data:`lbmpipe.reproduction.figures.FIGURE_CASES`); Fig. 10 adds the particle-free flow, the figure
-    of claim 14 the cases with collisions off."""
+    of claim 14 its dilute reference and the cases with collisions off."""
     names = figure_cases(av, key) if av is not None else []
     if key == "10":
         names += [n for n, c in (config.get("cases") or {}).items()
                   if not (c or {}).get("particles") and float((c or {}).get("reynolds", 0)) == 26.0]
-    if 14 in FIGURE_CLAIMS.get(key, []):  # claim 14 compares with the same packing, collisions off
-        names += [n for n, c in (config.get("cases") or {}).items()
-                  if (c or {}).get("particles") and (c or {}).get("collisions") is False]
+    if 14 in FIGURE_CLAIMS.get(key, []):  # claim 14: its dilute reference, and the collisions-off sensitivity
+        ref = find_case(config.get("cases") or {}, *REFERENCE_DESC)
+        names += ([ref] if ref else []) + [n for n, c in (config.get("cases") or {}).items()
+                                           if (c or {}).get("particles") and (c or {}).get("collisions") is False]
     return list(dict.fromkeys(names))
 
 
@@ -238,7 +253,7 @@ def figure_sections(fid_dir: Path, out_dir: Path, config: dict, claims_rows: lis
             numbers = [_omega_line(r) for r in av[av["case"].isin(names)].to_dict("records")]
         elif key == "10":
             numbers = [f"`{n}`: relative L2 difference from the Hagen-Poiseuille parabola "
-                       f"{fmt(cases[n]['summary'].get('profile_error_rel_l2'))}"
+                       f"{fmt(read_profile_error(fid_dir / 'cases' / n / 'profile.csv'))}"
                        for n in names if cases.get(n, {}).get("summary")]
         claims_here = [by_claim[fmt(c)] for c in FIGURE_CLAIMS.get(key, []) if fmt(c) in by_claim]
         # why: the flags and run-health issues measured for the cases of this figure
@@ -248,7 +263,7 @@ def figure_sections(fid_dir: Path, out_dir: Path, config: dict, claims_rows: lis
             if h is None:
                 continue
             if h["status"] not in ("completed",):
-                why.append(f"`{n}` {h['status']}")
+                why.append(f"`{n}` {h['status']}" + (f", {h['flags']}" if h["flags"] not in ("none", "") else ""))
             elif h["flags"] not in ("none", ""):
                 why.append(f"`{n}` {h['flags']}" + (f" ({h['issues']})" if h["issues"] else ""))
             if h.get("frozen") == "not computed":

@@ -9,8 +9,8 @@ spin (the seed-to-seed scatter of issue "steady results") cancels from the diffe
 observable: both values with their 95 % intervals, the difference relative to the paper method's
 value, and whether it exceeds the two intervals combined (independent runs: sqrt(ci_a^2 + ci_p^2)).
 Observables: mean |Omega| about x, y, z (Figs. 4-7), the mean orientation angle (Figs. 8-9), and
-the flow profile's relative L2 distance from Poiseuille (Fig. 10; for the particle-free flows this is
-the wall treatment's own error). Per claim: the verdicts side by side, each evaluated from packing
+the flow profile's relative L2 distance from Poiseuille (Fig. 10, ``profile_error`` of the run's
+``profile.csv``; for the particle-free flows this is the wall treatment's own error). Per claim: the verdicts side by side, each evaluated from packing
 seed 1 of the accurate level's cases under both methods; the level's ``claims.csv`` carries them
 beside its own verdict from all its packings and cases (``claims.LEVEL_CLAIM_COLUMNS``).
 """
@@ -31,6 +31,7 @@ from .comparison_figures import method_comparison
 from .health import _num as _f
 from .health import read_json as _read
 from .health import refresh_health, thresholds
+from .profile_error import read_profile_error
 from .statistics import aggregate
 
 #: the orientation angle of each shape that Figs. 8-9 show (stats.json ``orientation``)
@@ -85,7 +86,10 @@ def observables(run_dir: Path) -> tuple[dict[str, tuple[float, float]], str] | N
     if record is None:
         return None
     summary, stats = record
-    out = {"profile_error_rel_l2": (_f(summary.get("profile_error_rel_l2")), float("nan")), **stats_values(stats)}
+    # the profile's distance as every profile distance of the document (profile_error), from profile.csv
+    err = read_profile_error(Path(run_dir) / "profile.csv")
+    err = err if math.isfinite(err) else _f(summary.get("profile_error_rel_l2"))
+    out = {"profile_error_rel_l2": (err, float("nan")), **stats_values(stats)}
     return out, ";".join(stats.get("flags") or [])
 
 

@@ -14,7 +14,8 @@ claims and the document read:
   standard error as the bin's interval where the runs give none.
 - ``profile.csv``: the mean axial velocity profile over the seeds.
 - ``summary.json``: the status (``completed`` when every seed completed), the seeds' statuses,
-  steps and seconds summed, and the packing of each seed.
+  steps and seconds summed, the packing of each seed, and the combined profile's distance from its
+  parabola (``profile_error_rel_l2``, :func:`lbmpipe.reproduction.profile_error.profile_error`).
 
 The combined interval is :func:`lbmpipe.reproduction.steady.combine_seeds` (independent
 replications: the larger of the seeds' scatter and the runs' own noise).
@@ -30,6 +31,7 @@ import numpy as np
 import pandas as pd
 from . import health as H
 from . import steady
+from .profile_error import profile_error
 from .statistics import _jsonable
 
 AXES = ("x", "y", "z")
@@ -232,8 +234,13 @@ def write_combined(case: str, case_dir: Path, seeds, config: dict | None = None)
             return None
 
     combine_orientation([_csv(d / "orientation.csv") for _, d in dirs]).to_csv(case_dir / "orientation.csv", index=False)
-    combine_profiles([_csv(d / "profile.csv") for _, d in dirs]).to_csv(case_dir / "profile.csv", index=False)
+    profile = combine_profiles([_csv(d / "profile.csv") for _, d in dirs])
+    profile.to_csv(case_dir / "profile.csv", index=False)
     summary = combine_summaries(case, [(k, H.read_json(d / "summary.json")) for k, d in dirs])
+    # the combined profile's distance from its parabola (Fig. 10), as every profile distance is defined
+    err = profile_error(profile) if len(profile) else float("nan")
+    if np.isfinite(err):
+        summary["profile_error_rel_l2"] = err
     (case_dir / "summary.json").write_text(json.dumps(_jsonable(summary), indent=2, allow_nan=False) + "\n")
     return stats
 
