@@ -496,7 +496,7 @@ def test_statistics_rebuilt_from_the_committed_series_without_the_trajectory_are
     s = json.loads(with_traj[0])
     # the half-window sensitivity is there, over the later half of the samples
     assert s["second_half"]["samples"] == s["samples"] // 2 + s["samples"] % 2
-    assert s["second_half"]["start_s"] > s["spinup_s"]
+    assert s["second_half"]["spinup_s"] > s["spinup_s"]
 
 
 def test_series_statistics_agree_with_the_direct_trajectory_averages(tmp_path):
@@ -542,3 +542,24 @@ def test_every_committed_series_rebuilds_its_runs_committed_statistics_exactly(t
         S.write_case_outputs(run, dst, run_case(config, run)[1], config)
         for name in ("stats.json", "orientation.csv"):
             assert (dst / name).read_text() == (src / name).read_text(), f"{run}: {name} is not rebuilt exactly"
+
+
+def test_half_window_level_takes_every_runs_second_half_and_says_when_a_run_lacks_it(tmp_path):
+    from lbmpipe.reproduction import half_window as HW
+
+    _long_case(tmp_path / "lvl" / "cases", frozen=False)  # one run: cases/c
+    d = tmp_path / "lvl" / "cases" / "c"
+    S.write_case_outputs("c", d, CYL_CFG)
+    config = {"cases": {"c": CYL_CFG}}
+    s = json.loads((d / "stats.json").read_text())
+    level = HW.half_window_level(tmp_path / "lvl", config, tmp_path / "half")
+    av = pd.read_csv(level / "tables" / "angular_velocity.csv").set_index("case")
+    assert av.loc["c", "omega_x"] == pytest.approx(s["second_half"]["mean_abs_omega_rad_s"]["x"])
+    assert av.loc["c", "omega_x"] != pytest.approx(s["mean_abs_omega_rad_s"]["x"], rel=1e-9)
+    verdicts = HW.second_half_verdicts(tmp_path / "lvl", config)
+    assert len(verdicts) == 14 and not any(str(v).startswith("not available") for v in verdicts)
+    del s["second_half"]  # a run made before the compact series
+    (d / "stats.json").write_text(json.dumps(s))
+    assert set(HW.second_half_verdicts(tmp_path / "lvl", config)) == {
+        "not available: 1 of 1 runs lack the second-half statistics (made before the compact series; rerun them, "
+        "e.g. c)"}

@@ -319,11 +319,12 @@ def _particle_statistics(out: dict, series: pd.DataFrame, traj: pd.DataFrame | N
         out[k] = full[k]
     out["n_batches"] = int(min(r["n_batches"] for r in full["omega_intervals"].values()))
     if np.isfinite(half):
-        h = _window_statistics(series, _after(t_all, half), dt, shape, SR.read_window(case_dir, half))
-        out["second_half"] = {"start_s": half, "samples": h["samples"],
-                              "mean_abs_omega_rad_s": h["mean_abs_omega_rad_s"], "ci95_rad_s": h["ci95_rad_s"],
-                              "orientation": {k: {kk: v[kk] for kk in ("mean_deg", "ci95_deg", "median_deg")}
-                                              for k, v in h["orientation"].items()}}
+        # the record the half-window verdicts (``half_window``) put in place of the full window's
+        hw = SR.read_window(case_dir, half)
+        h = _window_statistics(series, _after(t_all, half), dt, shape, hw)
+        out["second_half"] = {"spinup_s": half, **h, "n_batches": int(min(r["n_batches"] for r in
+                                                                          h["omega_intervals"].values())),
+                              "orientation_memory": hw["orientation_memory"]}
 
 
 def orientation_histograms(case_dir: Path, shape: str, spinup_s: float, status: str = "completed",
