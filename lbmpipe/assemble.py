@@ -38,6 +38,7 @@ from .fluid.lattice import get_lattice
 from .guard import guard_for
 from .particles.collisions import CollisionEffect, CollisionParams, Domain
 from .particles.coupling import REFILLS, ParticleSystem, particle_effects
+from .particles.lubrication import lubrication_effects
 from .particles.placement import bodies_from_scene, domain_geometry
 from .solver import Simulation
 
@@ -48,8 +49,8 @@ class Step:
 
     ``pre``: ``walls`` then ``particle_fills`` (ghost fills and momentum exchange); ``fluid``: the
     sweep; ``post``: ``flux_correction`` (needs the sweep's owner map), ``control`` (the flow-rate
-    controller, reading the corrected flux), ``collisions`` (on the updated particle velocities,
-    before the drift), ``motion`` (drift, then the mass correction: changes the owner map).
+    controller, reading the corrected flux), ``lubrication`` (implicit film impulses), ``collisions``
+    (on the updated particle velocities, before the drift), ``motion`` (drift, then the mass correction: changes the owner map).
     ``force`` is the initial force density (lattice units)."""
 
     fluid: StreamCollide | None
@@ -58,13 +59,14 @@ class Step:
     particle_fills: list[Effect] = field(default_factory=list)
     flux_correction: list[Effect] = field(default_factory=list)
     control: list[Effect] = field(default_factory=list)
+    lubrication: list[Effect] = field(default_factory=list)
     collisions: list[Effect] = field(default_factory=list)
     motion: list[Effect] = field(default_factory=list)
 
     @property
     def effects(self) -> list[Effect]:
         return (self.walls + self.particle_fills + [self.fluid] + self.flux_correction + self.control
-                + self.collisions + self.motion)
+                + self.lubrication + self.collisions + self.motion)
 
 
 def collision_effect(scene, params, system):
@@ -99,6 +101,7 @@ def assemble(scene, params, grid: bnd.Grid, system=None) -> Step:
         ctl = FlowRateControl(params.flow_rate_lu, grid.radius, params.nu_lu, grid.shape[2], grid.n_fluid)
         step.control = [ctl]
         step.force = np.array([0.0, 0.0, ctl.f_ref])
+    step.lubrication = lubrication_effects(scene, params, system)  # numerics.lubrication: before the collisions
     collide = collision_effect(scene, params, system)
     step.collisions = [collide] if collide is not None else []
     # the density floor only where free particles can squeeze films

@@ -23,6 +23,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_valida
 from lbmpipe import inputs
 from lbmpipe.errors import SceneError  # noqa: F401  (scene.SceneError is the name callers use)
 from lbmpipe.fluid.collision import MAGIC_EXACT_WALL, CollisionOperator
+from lbmpipe.particles.lubrication_params import Lubrication
 from lbmpipe.units import DEFAULT_MACH_LIMIT
 
 Side = Literal["x-", "x+", "y-", "y+", "z-", "z+"]
@@ -136,12 +137,12 @@ class Numerics(_Model):
     )
     density_floor: Optional[float] = Field(
         0.5, gt=0, lt=1,
-        description="Scenes with free particles: the lowest fluid density, as a fraction of the reference density, a "
-        "node may reach. A film thinner than one spacing between a particle and the wall or another particle is "
-        "drained by the moving bounce-back of Eq. (8) faster than its few fluid links refill it; below the floor "
-        "mass is added at zero momentum and the summary reports how much (`density_floor`). null: no floor (dense "
-        "packings may then diverge).",
+        description="Scenes with free particles: the lowest fluid density, as a fraction of the reference density, a node may reach. "
+        "A film thinner than one spacing between a particle and the wall or another particle is drained by the moving bounce-back "
+        "of Eq. (8) faster than its few fluid links refill it; below the floor mass is added at zero momentum and the summary "
+        "reports how much (`density_floor`). null: no floor (dense packings may then diverge).",
     )
+    lubrication: Lubrication = Field(default_factory=Lubrication, description="Sub-grid lubrication between close particle surfaces (off: the paper's method).")
 
 
 class Run(_Model):

@@ -11,6 +11,7 @@ from typing import Any, Literal, Union
 from pydantic import BaseModel
 from pydantic_core import PydanticUndefined
 
+from lbmpipe.particles.lubrication_params import Lubrication
 from lbmpipe.scene import (Collisions, FieldOutput, MovingWall, PackedParticles, ParticleBody, RandomParticles, Scene,
                            Walls, _model_at)
 
@@ -157,7 +158,8 @@ Lattice units have `dx = dt = 1` and density 1 = `fluid.density_kg_m3`.
 def describe_fields() -> str:
     """Markdown reference of every scene field (the content of docs/scene.md)."""
     sections = [("(top level)", Scene)] + [(key, _model_at((key,))) for key in Scene.model_fields if _model_at((key,))]
-    sections += [("domain.walls", Walls), ("domain.moving_walls[i]", MovingWall), ("outputs.fields", FieldOutput),
+    sections += [("domain.walls", Walls), ("domain.moving_walls[i]", MovingWall), ("numerics.lubrication", Lubrication),
+                 ("outputs.fields", FieldOutput),
                  ("particles.bodies[i]", ParticleBody), ("particles.random[i]", RandomParticles),
                  ("particles.packed[i]", PackedParticles), ("particles.collisions", Collisions)]
     lines = [_DOC_HEAD]
