@@ -23,6 +23,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_valida
 from lbmpipe import inputs
 from lbmpipe.errors import SceneError  # noqa: F401  (scene.SceneError is the name callers use)
 from lbmpipe.fluid.collision import MAGIC_EXACT_WALL, CollisionOperator
+from lbmpipe.particle_numerics import ParticleSurfaceNumerics
 from lbmpipe.units import DEFAULT_MACH_LIMIT
 
 Side = Literal["x-", "x+", "y-", "y+", "z-", "z+"]
@@ -109,7 +110,7 @@ class Initial(_Model):
     )
 
 
-class Numerics(_Model):
+class Numerics(_Model, ParticleSurfaceNumerics):
     """Discretisation and lattice-method choices."""
 
     dx_mm: float = Field(1.0, gt=0, description="Lattice spacing in mm.")
