@@ -197,7 +197,8 @@ def test_flow_rate_bookkeeping_holds_with_cli_and_the_galilean_exchange():
     grid = bnd.pipe_grid(LAT, 20, 32)
     rng = np.random.default_rng(4)
     bodies = Bodies.concatenate([
-        Bodies.make(shapes.CUBE, [3.0, 3.0, 3.0], 1.0, [[3.0, -2.0, 6.0], [-4.0, 3.0, 22.0]], q=random_quaternions(2, rng)),
+        Bodies.make(shapes.CUBE, [3.0, 3.0, 3.0], 1.0, [[3.0, -2.0, 6.0], [-4.0, 3.0, 22.0]],
+                    q=random_quaternions(2, rng)),
         Bodies.make(shapes.SPHERE, [3.0, 3.0, 3.0], 1.0, [[0.0, 5.0, 14.0]], fixed=[True]),
     ])
     system = cp.ParticleSystem(grid, bodies)

@@ -69,6 +69,7 @@ iteration, its sums in link order: the bits do not depend on the thread count.
 
 from __future__ import annotations
 
+import math
 from typing import NamedTuple
 
 import numba
@@ -79,7 +80,7 @@ from ..rigid import quat_to_matrix
 from .implicit import solve6
 from .nodes import FLUID
 from .prefetch import PREFETCH_AHEAD, prefetch
-from .surface import HALF_WAY, link_base, link_fraction
+from .surface import HALF_WAY, entry_fraction, link_base
 
 
 class Shapes(NamedTuple):
@@ -92,18 +93,21 @@ class Shapes(NamedTuple):
 class SurfaceScratch(NamedTuple):
     """Per-thread buffers (threads, max links of a particle) of the link passes: ``f`` the
     population ``f*_i(x)``, ``g`` the interpolated ghost base ``G``, ``q`` the fraction and ``c``
-    the moving-wall coefficient of each link; ``m`` (threads, 6, 7) the 6x6 system."""
+    the moving-wall coefficient of each link, ``fb`` and ``fo`` the populations ``f*_i(x - e_i)``
+    and ``f*_opp(i)(x)``; ``m`` (threads, 6, 7) the 6x6 system."""
 
     f: np.ndarray
     g: np.ndarray
     q: np.ndarray
     c: np.ndarray
+    fb: np.ndarray
+    fo: np.ndarray
     m: np.ndarray
 
 
 def surface_scratch(threads: int, links: int) -> SurfaceScratch:
     """Zeroed ``SurfaceScratch`` for ``threads`` threads and particles of up to ``links`` links."""
-    return SurfaceScratch(*(np.zeros((threads, links)) for _ in range(4)), np.zeros((threads, 6, 7)))
+    return SurfaceScratch(*(np.zeros((threads, links)) for _ in range(6)), np.zeros((threads, 6, 7)))
 
 
 @njit(parallel=True, cache=True)
@@ -153,12 +157,13 @@ def couple_free_surface(f2, owner, ids, B, D, lat, G, L, shape, S, rule, galilea
     SG = S.g
     SQ = S.q
     SCc = S.c
+    SB = S.fb
+    SO = S.fo
     SM = S.m
     Q = e.shape[0]
     nx = dims[0]
     ny = dims[1]
     nz = dims[2]
-    plane = ny * az
     for m in prange(ids.shape[0]):
         k = ids[m]
         tid = numba.get_thread_id()
@@ -166,9 +171,13 @@ def couple_free_surface(f2, owner, ids, B, D, lat, G, L, shape, S, rule, galilea
         LG = SG[tid]
         LQ = SQ[tid]
         LK = SCc[tid]
+        LB = SB[tid]
+        LO = SO[tid]
         M = SM[tid]
         A = quat_to_matrix(q[k])
-        hk = hh[k]
+        h0 = hh[k, 0]
+        h1 = hh[k, 1]
+        h2 = hh[k, 2]
         kk = kind[k]
         # fluid node about the centre: r_x = origin + c - e_i - X, per direction a constant plus c
         O0 = origin[0] - x[k, 0]
@@ -192,6 +201,24 @@ def couple_free_surface(f2, owner, ids, B, D, lat, G, L, shape, S, rule, galilea
             oi = opp[i]
             b0 = lbase[k, i]
             end = b0 + lcnt[k, i]
+            # The scattered reads first, in loops without branches: their cache misses (f is out
+            # of cache after the sweep) overlap instead of waiting one by one (as in ``ladd``).
+            for pos in range(b0, end):
+                if pos + PREFETCH_AHEAD < end:
+                    prefetch(f2, i, LN[pos + PREFETCH_AHEAD, 0], 0)
+                LF[pos - off0] = f2[i, LN[pos, 0]]
+            if rule != HALF_WAY:
+                # f*_opp(i)(x), and f*_i(x - e_i) with whether x - e_i is fluid (in LK for now);
+                # x - e_i from the unwrapped coordinates c - 2 e_i through the wrap tables
+                for pos in range(b0, end):
+                    if pos + PREFETCH_AHEAD < end:
+                        prefetch(f2, oi, LN[pos + PREFETCH_AHEAD, 0], 0)
+                    p = pos - off0
+                    LO[p] = f2[oi, LN[pos, 0]]
+                    x2 = ((xmap[LC[pos, 0] - 2 * ie0 + nx] * ny + ymap[LC[pos, 1] - 2 * ie1 + ny]) * az
+                          + zmap[LC[pos, 2] - 2 * ie2 + nz])
+                    LB[p] = f2[i, x2]
+                    LK[p] = 1.0 if owner[x2] == FLUID else 0.0
             pos = b0
             while pos < end:
                 xn = LN[pos, 0]
@@ -204,30 +231,46 @@ def couple_free_surface(f2, owner, ids, B, D, lat, G, L, shape, S, rule, galilea
                         LN[pos, 1] = LN[end, 1]
                         for d in range(3):
                             LC[pos, d] = LC[end, d]
+                        LF[pos - off0] = LF[end - off0]
+                        LO[pos - off0] = LO[end - off0]
+                        LB[pos - off0] = LB[end - off0]
+                        LK[pos - off0] = LK[end - off0]
                         continue
-                if pos + PREFETCH_AHEAD < end:
-                    prefetch(f2, i, LN[pos + PREFETCH_AHEAD, 0], 0)
-                fv = f2[i, xn]
-                qq = 0.5
-                cc = 1.0
-                gv = fv
-                if rule != HALF_WAY:
-                    qq = link_fraction(kk, hk, A, O0 + LC[pos, 0] - ie0, O1 + LC[pos, 1] - ie1,
-                                       O2 + LC[pos, 2] - ie2, ie0, ie1, ie2)
-                    a_ = xn // plane
-                    b_ = (xn // az) % ny
-                    z_ = xn % az
-                    x2 = (xmap[a_ - ie0 + nx] * ny + ymap[b_ - ie1 + ny]) * az + zmap[z_ - ie2 + nz]
-                    gv, cc = link_base(rule, qq, fv, f2[i, x2], f2[oi, xn], owner[x2] == FLUID)
-                    exc += gv - fv
-                    wsum += w[i]
+                pos += 1
+            lcnt[k, i] = end - b0
+            if rule == HALF_WAY:
+                for pos in range(b0, end):
+                    p = pos - off0
+                    LG[p] = LF[p]
+                    LQ[p] = 0.5
+                    LK[p] = 1.0
+                continue
+            # body frame: the link's unit direction, and the fluid node at c = 0 (A^T (O - e_i))
+            ex = float(ie0)
+            ey = float(ie1)
+            ez = float(ie2)
+            ni = math.sqrt(ex * ex + ey * ey + ez * ez)
+            d0 = (A[0, 0] * ex + A[1, 0] * ey + A[2, 0] * ez) / ni
+            d1 = (A[0, 1] * ex + A[1, 1] * ey + A[2, 1] * ez) / ni
+            d2 = (A[0, 2] * ex + A[1, 2] * ey + A[2, 2] * ez) / ni
+            P0 = A[0, 0] * (O0 - ex) + A[1, 0] * (O1 - ey) + A[2, 0] * (O2 - ez)
+            P1 = A[0, 1] * (O0 - ex) + A[1, 1] * (O1 - ey) + A[2, 1] * (O2 - ez)
+            P2 = A[0, 2] * (O0 - ex) + A[1, 2] * (O1 - ey) + A[2, 2] * (O2 - ez)
+            for pos in range(b0, end):
                 p = pos - off0
-                LF[p] = fv
+                c0 = float(LC[pos, 0])
+                c1 = float(LC[pos, 1])
+                c2 = float(LC[pos, 2])
+                qq = entry_fraction(kk, h0, h1, h2, P0 + A[0, 0] * c0 + A[1, 0] * c1 + A[2, 0] * c2,
+                                    P1 + A[0, 1] * c0 + A[1, 1] * c1 + A[2, 1] * c2,
+                                    P2 + A[0, 2] * c0 + A[1, 2] * c1 + A[2, 2] * c2, d0, d1, d2, ni)
+                fv = LF[p]
+                gv, cc = link_base(rule, qq, fv, LB[p], LO[p], LK[p] > 0.5)
+                exc += gv - fv
+                wsum += w[i]
                 LG[p] = gv
                 LQ[p] = qq
                 LK[p] = cc
-                pos += 1
-            lcnt[k, i] = end - b0
         delta = exc / wsum if wsum > 0.0 else 0.0
         # ---- pass 1b: sums per direction, folded into g = (F0, T0), Z and the Galilean term
         for p_ in range(6):

@@ -9,12 +9,14 @@ rule stays in ``ladd.fixed_fill``.
 
 from __future__ import annotations
 
+import math
+
 import numba
 from numba import njit, prange
 
 from ..rigid import quat_to_matrix
 from .nodes import FLUID
-from .surface import link_base, link_fraction
+from .surface import entry_fraction, link_base
 
 
 @njit(parallel=True, cache=True)
@@ -25,8 +27,9 @@ def fixed_fill_surface(f2, owner, ids, B, D, lat, G, L, shape, S, rule):
     Inputs as ``ladd.fixed_fill`` (``B.x`` and ``B.q`` read), plus ``shape``
     (``interpolated.Shapes``) and ``S`` (``interpolated.SurfaceScratch``; ``f``, ``g``, ``q``
     used), ``rule`` (``surface.BOUZIDI`` or ``CLI``). Outputs: ``f2[opp(i), s]`` on every live
-    link of ``ids``; ``D.force``, ``D.torque``, ``D.exch`` of ``ids``; dead links removed. Reads fluid slots only and writes particle slots
-    only: parallel over particles, sums in link order (bits independent of the thread count)."""
+    link of ``ids``; ``D.force``, ``D.torque``, ``D.exch`` of ``ids``; dead links removed. Reads
+    fluid slots only and writes particle slots only: parallel over particles, sums in link order
+    (bits independent of the thread count)."""
     # Bundled arguments are taken apart by field access, never by tuple unpacking: in a parallel
     # kernel (numba 0.68) writes through an array unpacked from a tuple are lost.
     x = B.x
@@ -58,7 +61,6 @@ def fixed_fill_surface(f2, owner, ids, B, D, lat, G, L, shape, S, rule):
     nx = dims[0]
     ny = dims[1]
     nz = dims[2]
-    plane = ny * az
     for m in prange(ids.shape[0]):
         k = ids[m]
         tid = numba.get_thread_id()
@@ -66,7 +68,9 @@ def fixed_fill_surface(f2, owner, ids, B, D, lat, G, L, shape, S, rule):
         LG = SG[tid]
         LQ = SQ[tid]
         A = quat_to_matrix(q[k])
-        hk = hh[k]
+        h0 = hh[k, 0]
+        h1 = hh[k, 1]
+        h2 = hh[k, 2]
         kk = kind[k]
         O0 = origin[0] - x[k, 0]
         O1 = origin[1] - x[k, 1]
@@ -80,6 +84,17 @@ def fixed_fill_surface(f2, owner, ids, B, D, lat, G, L, shape, S, rule):
             ie1 = e[i, 1]
             ie2 = e[i, 2]
             oi = opp[i]
+            # body frame: the link's unit direction, and the fluid node at c = 0 (A^T (O - e_i))
+            ex = float(ie0)
+            ey = float(ie1)
+            ez = float(ie2)
+            ni = math.sqrt(ex * ex + ey * ey + ez * ez)
+            d0 = (A[0, 0] * ex + A[1, 0] * ey + A[2, 0] * ez) / ni
+            d1 = (A[0, 1] * ex + A[1, 1] * ey + A[2, 1] * ez) / ni
+            d2 = (A[0, 2] * ex + A[1, 2] * ey + A[2, 2] * ez) / ni
+            P0 = A[0, 0] * (O0 - ex) + A[1, 0] * (O1 - ey) + A[2, 0] * (O2 - ez)
+            P1 = A[0, 1] * (O0 - ex) + A[1, 1] * (O1 - ey) + A[2, 1] * (O2 - ez)
+            P2 = A[0, 2] * (O0 - ex) + A[1, 2] * (O1 - ey) + A[2, 2] * (O2 - ez)
             b0 = lbase[k, i]
             end = b0 + lcnt[k, i]
             pos = b0
@@ -93,13 +108,16 @@ def fixed_fill_surface(f2, owner, ids, B, D, lat, G, L, shape, S, rule):
                     for d in range(3):
                         LC[pos, d] = LC[end, d]
                     continue
+                c0 = float(LC[pos, 0])
+                c1 = float(LC[pos, 1])
+                c2 = float(LC[pos, 2])
+                qq = entry_fraction(kk, h0, h1, h2, P0 + A[0, 0] * c0 + A[1, 0] * c1 + A[2, 0] * c2,
+                                    P1 + A[0, 1] * c0 + A[1, 1] * c1 + A[2, 1] * c2,
+                                    P2 + A[0, 2] * c0 + A[1, 2] * c1 + A[2, 2] * c2, d0, d1, d2, ni)
+                # x - e_i from the unwrapped coordinates c - 2 e_i through the wrap tables
+                x2 = ((xmap[LC[pos, 0] - 2 * ie0 + nx] * ny + ymap[LC[pos, 1] - 2 * ie1 + ny]) * az
+                      + zmap[LC[pos, 2] - 2 * ie2 + nz])
                 fv = f2[i, xn]
-                qq = link_fraction(kk, hk, A, O0 + LC[pos, 0] - ie0, O1 + LC[pos, 1] - ie1,
-                                   O2 + LC[pos, 2] - ie2, ie0, ie1, ie2)
-                a_ = xn // plane
-                b_ = (xn // az) % ny
-                z_ = xn % az
-                x2 = (xmap[a_ - ie0 + nx] * ny + ymap[b_ - ie1 + ny]) * az + zmap[z_ - ie2 + nz]
                 gv, cc = link_base(rule, qq, fv, f2[i, x2], f2[oi, xn], owner[x2] == FLUID)
                 exc += gv - fv
                 wsum += w[i]

@@ -48,7 +48,8 @@ def particle_effects(system: ParticleSystem, flux_control: bool = False, bouzidi
     if bouzidi_links is not None and len(bouzidi_links) and system.n:
         pre.append(BouzidiParticleGuard(system, bouzidi_links))
     if len(system.fixed_ids):
-        pre.append(FixedParticles(system) if boundary == "bounce_back" else FixedParticlesInterpolated(system, boundary))
+        fixed = FixedParticles(system) if boundary == "bounce_back" else FixedParticlesInterpolated(system, boundary)
+        pre.append(fixed)
     if len(system.free_ids):
         pre.append(ParticleCoupling(system) if paper else SurfaceCoupling(system, boundary, exchange))
     before = [ParticleFluxCorrection(system, wall_links)] if flux_control and system.n else []
