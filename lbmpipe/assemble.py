@@ -95,7 +95,8 @@ def assemble(scene, params, grid: bnd.Grid, system=None) -> Step:
         system.refill = REFILLS[num.refill]  # populations of the nodes a moving particle uncovers
         bouzidi = [e.links for e in walls if isinstance(e, WallBouzidi)]
         phases = particle_effects(system, flux_control=flux, bouzidi_links=bouzidi[0] if bouzidi else None,
-                                  wall_links=[e.links for e in walls])
+                                  wall_links=[e.links for e in walls], boundary=num.particle_boundary,
+                                  exchange=num.momentum_exchange)
         step.particle_fills, step.flux_correction, step.motion = phases.pre, phases.before_control, phases.after_control
     if flux:
         ctl = FlowRateControl(params.flow_rate_lu, grid.radius, params.nu_lu, grid.shape[2], grid.n_fluid)

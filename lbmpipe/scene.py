@@ -23,7 +23,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_valida
 from lbmpipe import inputs
 from lbmpipe.errors import SceneError  # noqa: F401  (scene.SceneError is the name callers use)
 from lbmpipe.fluid.collision import MAGIC_EXACT_WALL, CollisionOperator
-from lbmpipe.particles.lubrication_params import Lubrication
+from lbmpipe.particle_numerics import ParticleSurfaceNumerics
 from lbmpipe.units import DEFAULT_MACH_LIMIT
 
 Side = Literal["x-", "x+", "y-", "y+", "z-", "z+"]
@@ -110,7 +110,7 @@ class Initial(_Model):
     )
 
 
-class Numerics(_Model):
+class Numerics(_Model, ParticleSurfaceNumerics):
     """Discretisation and lattice-method choices."""
 
     dx_mm: float = Field(1.0, gt=0, description="Lattice spacing in mm.")
@@ -125,8 +125,6 @@ class Numerics(_Model):
     wall: Literal["bounce_back", "bouzidi"] = Field(
         "bounce_back", description="Static curved walls: `bounce_back` (half-way, staircase, the paper's) or `bouzidi` (interpolated)."
     )
-    refill: Literal["equilibrium", "extrapolated"] = Field("equilibrium", description="Moving particles: populations of a node a particle uncovers. `equilibrium` (the paper's: Eq. (3) at the surface velocity and the neighbours' mean density) or `extrapolated` (plus the "
-                                                            "neighbours' non-equilibrium stress, Grad's approximation: `lbmpipe/particles/coupling/refill_extrapolated.py`).")
     precision: Literal["float64", "float32"] = Field("float64", description="Floating-point type of the distributions.")
     mach_limit: float = Field(
         DEFAULT_MACH_LIMIT, gt=0,
@@ -142,7 +140,6 @@ class Numerics(_Model):
         "of Eq. (8) faster than its few fluid links refill it; below the floor mass is added at zero momentum and the summary "
         "reports how much (`density_floor`). null: no floor (dense packings may then diverge).",
     )
-    lubrication: Lubrication = Field(default_factory=Lubrication, description="Sub-grid lubrication between close particle surfaces (off: the paper's method).")
 
 
 class Run(_Model):

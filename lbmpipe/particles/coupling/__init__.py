@@ -13,6 +13,10 @@ One algorithm a file
   owner map;
 - ``ladd``: Ladd's moving bounce-back and momentum exchange on the links, Eqs. (8)-(12);
 - ``implicit``: the implicit velocity update of the free particles;
+- ``surface``, ``interpolated``, ``interpolated_fixed``, ``remap_galilean``, ``surface_effects``:
+  the options ``numerics.particle_boundary`` (interpolated bounce-back: the link's distance to the
+  surface, the rules, the free and fixed particles' kernels) and ``numerics.momentum_exchange``
+  (Galilean-invariant exchange, with its remap);
 - ``remap``: cover and uncover after a move, with the momentum accounting;
 - ``refill``: the populations of an uncovered node (the paper's equilibrium); ``refill_extrapolated``:
   with the neighbours' non-equilibrium stress (``numerics.refill``, ``remap.REFILLS``);

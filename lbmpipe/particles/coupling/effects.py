@@ -9,6 +9,7 @@ from __future__ import annotations
 
 from ...effect import Effect
 from ...fluid.boundaries import plane_buffer
+from .remap import apply_changes
 from .system import ParticleSystem
 
 
@@ -45,8 +46,9 @@ class ParticleMotion(Effect):
     name = "particles: motion + remap (cover/uncover)"
     phase = "post"
 
-    def __init__(self, system: ParticleSystem):
+    def __init__(self, system: ParticleSystem, remap=apply_changes):
         self.system = system
+        self.remap = remap  # remap.apply_changes, or remap_galilean's (numerics.momentum_exchange)
 
     def __call__(self, sim) -> None:
-        self.system.move(plane_buffer(sim.f_next))
+        self.system.move(plane_buffer(sim.f_next), self.remap)

@@ -227,16 +227,22 @@ class ParticleSystem:
         ids = self.free_ids
         if not len(ids):
             return
-        b = self.bodies
-        fb = np.asarray(body_force, dtype=np.float64)
-        self.fext[:, :3] = self.vol[:, None] * (fb[None, :] + (b.mass / self.vol - self.rho0)[:, None] * self.gravity)
+        self.external_loads(body_force)
         couple_free(f2, self.owner, ids, self.body_state, self.loads, self.lat, self.G, self.L, self.scratch)
         accumulate_loads(ids, self.force, self.torque, self.force_sum, self.torque_sum, self.n_sum)
         clear_changed(self.chg, self.chg_list, self.nchg)  # the last link pass of the step
 
-    def move(self, f2):
+    def external_loads(self, body_force):
+        """``fext`` of the step: the flow's body force on each particle's volume and gravity on its
+        excess mass (module docstring)."""
+        b = self.bodies
+        fb = np.asarray(body_force, dtype=np.float64)
+        self.fext[:, :3] = self.vol[:, None] * (fb[None, :] + (b.mass / self.vol - self.rho0)[:, None] * self.gravity)
+
+    def move(self, f2, remap=apply_changes):
         """Drift of the free particles over one step with their new velocities, then the remap
-        (``post``; ``f2`` holds the post-collision populations of the new time)."""
+        (``post``; ``f2`` holds the post-collision populations of the new time; ``remap``:
+        ``remap.apply_changes`` or ``remap_galilean.apply_changes_galilean``)."""
         ids = self.free_ids
         if not len(ids):
             return
@@ -247,9 +253,8 @@ class ParticleSystem:
         diff_runs(ids, self.runs, nxt, self.G, self.changes)
         # the drift turned wb with the body: the lab angular velocity for the surface velocities
         self.om[:] = omega_lab_arrays(b.q, b.wb)
-        self.last_cover = apply_changes(ids, self.changes, self.all_ids, nxt, b.x, b.v, self.om, self.owner, f2,
-                                        self.lat, self.imp, self.moved, self.G, self.L, self.remap_state,
-                                        self.refill)
+        self.last_cover = remap(ids, self.changes, self.all_ids, nxt, b.x, b.v, self.om, self.owner, f2,
+                                self.lat, self.imp, self.moved, self.G, self.L, self.remap_state, self.refill)
         self.n_fluid -= self.last_cover[0] - self.last_cover[1]
         self._check_links()
         wrap_positions(ids, b.x, self.lo, self.G, nxt, self.L)
