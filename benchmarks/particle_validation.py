@@ -15,7 +15,7 @@ Harnesses: ``lbmpipe.reproduction.particle_checks`` (D3Q15, periodic cube, latti
 Each at tau 1.0 and 1.78 where it applies. Contenders ("set"): ``paper`` (half-way bounce-back,
 BGK); ``bouzidi`` and ``cli`` with BGK; ``bouzidi+trt`` and ``cli+trt`` with TRT (magic 3/16).
 
-Run (one thread; about 10 minutes on the 2-core EPYC host with numba's cache warm):
+Run (one thread; 8 minutes on the 2-core EPYC host, shared, with numba's cache warm):
 
     python benchmarks/particle_validation.py [--offsets 4] [--threads 1] [--json FILE]
 """
