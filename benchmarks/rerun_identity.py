@@ -15,7 +15,7 @@ profile, static table, benchmark record, and the trajectory, which git ignores) 
 run's statistics with today's code (``series.csv.gz``, ``trajectory.json``, ``stats.json``,
 ``orientation.csv``, ``last_frame.csv``).
 
-    python benchmarks/rerun_identity.py /work/wt/prod --level credible [--adopt]
+    python benchmarks/rerun_identity.py <checkout of the reruns> --level credible [--adopt]
 """
 
 from __future__ import annotations

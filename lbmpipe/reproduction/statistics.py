@@ -436,8 +436,13 @@ def _case_orientation(case_dir: Path, shape: str, stats: dict) -> pd.DataFrame:
             return df
     spin = _num(stats.get("spinup_s"))
     tau_o = _num((stats.get("orientation_memory") or {}).get("tau_orient_s"))
+    # without orientation.csv and without the series to make it (a combined record, a view of
+    # another level's seeds), the histogram rows are laid out with NaN: the claims that need
+    # them say so ("orientation histogram ... has NaN")
+    have = (case_dir / SR.SERIES).exists() or (case_dir / SR.TRAJECTORY_FILE).exists()
     return orientation_histograms(case_dir, shape, spin if np.isfinite(spin) else 0.0,
-                                  status=stats.get("status", "not run"), tau_s=tau_o if np.isfinite(tau_o) else None)
+                                  status=stats.get("status", "not run") if have else "no series",
+                                  tau_s=tau_o if np.isfinite(tau_o) else None)
 
 
 def aggregate(fid_dir: Path, cases: dict) -> None:
