@@ -305,15 +305,15 @@ def _approach():
     return mod.mean_approach_force
 
 
-def test_sphere_approaching_a_wall_meets_brenners_exact_force_within_5_percent_with_lubrication():
-    # a = 6 spacings in a 32^3 box (walls at z = 0 and 32), tau = 1, two lateral positions per gap.
-    # Measured: with lubrication +0.3 % (h = 0.1), +1.6 % (0.2), +3.7 % (2.0: the finite box's
-    # images; no correction acts above the cutoff); without it the force at 0.1 is 13 % of Brenner's.
-    # Between 0.3 and 1.5 the resolved force of the staircase sphere is off by up to 15 %
-    # (benchmarks/README.md, "Issue 44: lubrication").
+def test_sphere_approaching_a_wall_meets_brenners_exact_force_within_5_percent_at_gaps_0_1_to_0_3_and_2():
+    # a = 6 spacings in a 32^3 box (walls at z = 0 and 32), tau = 1, the default cutoff (0.8), two
+    # lateral positions per gap. Without the correction the force at 0.1 spacing is 13 % of
+    # Brenner's; at 2 spacings (above the cutoff: nothing added) the box's images add ~4 %. Between
+    # 0.5 and 1 spacing the staircase sphere's resolved force is off by up to 7.5 % even with the
+    # correction (benchmarks/README.md, "Issue 44: lubrication"), so those gaps are not asserted.
     mean_approach_force = _approach()
     offsets = np.random.default_rng(0).random((2, 2))
-    for gap, without_max in ((0.1, 0.2), (0.2, 0.3), (2.0, 1.1)):
+    for gap, without_max in ((0.1, 0.2), (0.2, 0.3), (0.3, 0.5), (2.0, 1.1)):
         r = mean_approach_force(6.0, gap, 32, 32, offsets)
         print(f"h = {gap}: Brenner {r['brenner']:.3f}, without {r['without']:.3f}, with {r['with']:.3f}")
         assert r["with"] == pytest.approx(r["brenner"], rel=0.05)
