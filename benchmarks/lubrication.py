@@ -20,7 +20,8 @@ The box is finite: its walls and periodic images add drag (a Stokeslet's images)
 ``--height`` set it, and the rows above the cutoff show what it adds where lubrication is off.
 
 Run (the README's table): ``PYTHONPATH=. python benchmarks/lubrication.py``; the test
-(``tests/test_lubrication.py``) runs a smaller box through ``mean_approach_force``.
+(``tests/test_lubrication.py``) runs a smaller box through ``mean_approach_force``. With
+``--cost [CASE ...]`` it times the effect on committed credible runs of the paper's pipe instead.
 """
 
 from __future__ import annotations
@@ -56,7 +57,7 @@ class HoldVelocity(Effect):
         self.bodies.wb[0] = 0.0
 
 
-def approach_scene(a: float, gap: float, box: int, height: int, U: float, tau: float, cutoff: float,
+def approach_scene(a: float, gap: float, box: int, height: int, U: float, tau: float, cutoff: float | None,
                    offset=(0.0, 0.0)) -> Scene:
     """The scene of one gap: dx = 1 mm, dt = 1 ms, so lattice and SI numbers coincide up to 10^-3
     (lengths in mm, speeds in m/s per lattice unit, viscosity nu_lu 1e-3 m^2/s)."""
@@ -65,7 +66,7 @@ def approach_scene(a: float, gap: float, box: int, height: int, U: float, tau: f
         "name": "sphere_approaching_wall",
         "domain": {"kind": "box", "size_mm": [float(box), float(box), float(height)], "walls": {"z": "wall"}},
         "fluid": {"viscosity_m2_s": nu_lu * 1e-3},
-        "numerics": {"lubrication": {"enabled": True, "cutoff_dx": cutoff}},
+        "numerics": {"lubrication": {"enabled": True} | ({} if cutoff is None else {"cutoff_dx": cutoff})},
         "run": {"duration_s": 10.0, "spinup_s": 1.0, "sample_interval_s": 1.0},
         "outputs": {"profile": False, "flow_rate": False},
         "particles": {"bodies": [{"shape": "sphere", "diameter_mm": 2.0 * a,
@@ -76,7 +77,7 @@ def approach_scene(a: float, gap: float, box: int, height: int, U: float, tau: f
 
 
 def approach_force(a: float, gap: float, box: int, height: int, U: float = 1e-3, tau: float = 1.0,
-                   cutoff: float = 1.0, tol: float = 1e-4, max_steps: int = 20000, offset=(0.0, 0.0)) -> dict:
+                   cutoff: float | None = None, tol: float = 1e-4, max_steps: int = 20000, offset=(0.0, 0.0)) -> dict:
     """Steady drag factors of the held sphere at ``gap`` (lattice spacings), its centre moved by
     ``offset`` (x, y) from the box's middle: ``without`` (the coupling's force alone) and ``with``
     (plus the lubrication effect's), and Brenner's. Steady: at least 8 decay times of the box's
@@ -124,6 +125,64 @@ def mean_approach_force(a, gap, box, height, offsets, **kw) -> dict:
     return out
 
 
+COST_CASES = ["cube8_c30_re9.4", "cyl8x16_c50_re9.4"]
+
+
+def cost(cases, seed: int = 1, steps: int = 50, warmup: int = 50, repeats: int = 3) -> None:
+    """ms per step of the lubrication effect against the sweep and the whole step, on the
+    committed credible scenes (their packings), built as a run builds them: ``paper`` (as
+    committed), ``lubrication`` (``numerics.lubrication.enabled``) and ``lubrication, gap 0.1``
+    (also ``particles.collisions.contact_gap_dx: 0.1``, so that films thinner than the paper's
+    contact gap of one spacing occur). Rounds interleave the contenders; medians over them."""
+    from pathlib import Path
+
+    from lbmpipe.scene import load_scene
+
+    root = Path(__file__).resolve().parents[1]
+    print("| case | variant | sweep ms | lubrication ms | collisions ms | step ms | step / paper | films a step |")
+    print("| --- | --- | --- | --- | --- | --- | --- | --- |")
+    for case in cases:
+        base = load_scene(root / "results" / "credible" / "cases" / case / f"seed{seed}" / "scene.yaml")
+        data = base.model_dump(mode="json", exclude_unset=True)
+        variants = {"paper": data}
+        lub = dict(data, numerics={**data["numerics"], "lubrication": {"enabled": True}})
+        variants["lubrication"] = lub
+        thin = dict(lub, particles={**lub["particles"], "collisions": {**lub["particles"].get("collisions", {}),
+                                                                      "contact_gap_dx": 0.1}})
+        variants["lubrication, gap 0.1"] = thin
+        sims = {}
+        for name, d in variants.items():
+            sc = Scene.model_validate(d)
+            sim = simulation_from_scene(sc, derive(sc))
+            sim.step(warmup)
+            sims[name] = sim
+        rows = {name: [] for name in sims}
+        for r in range(repeats):
+            order = list(sims) if r % 2 == 0 else list(sims)[::-1]
+            for name in order:
+                sim = sims[name]
+                before = dict(sim.timers)
+                t0 = time.perf_counter()
+                sim.step(steps)
+                wall = time.perf_counter() - t0
+                eff = {k: 1e3 * (v - before[k]) / steps for k, v in sim.timers.items()}
+                rows[name].append((eff, 1e3 * wall / steps))
+        med = {}
+        for name, rs in rows.items():
+            def part(prefix):
+                return float(np.median([sum(v for k, v in e.items() if k.startswith(prefix)) for e, _ in rs]))
+            med[name] = (part("stream+collide"), part("particles: lubrication"), part("collisions"),
+                         float(np.median([w for _, w in rs])))
+        for name, (sw, lu, co, st) in med.items():
+            lubs = [e for e in sims[name].effects if isinstance(e, LubricationEffect)]
+            films = ""
+            if lubs:
+                t = lubs[0].totals
+                films = f"{(t['pair_contacts'] + t['wall_contacts']) / max(t['calls'], 1):.1f}"
+            print(f"| {case} | {name} | {sw:.2f} | {lu:.2f} | {co:.2f} | {st:.2f} | {st / med['paper'][3]:.2f} | {films} |",
+                  flush=True)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--radius", type=float, default=8.0, help="sphere radius, lattice spacings")
@@ -135,7 +194,12 @@ def main() -> None:
     ap.add_argument("--cutoff", type=float, default=Lubrication().cutoff_dx, help="numerics.lubrication.cutoff_dx")
     ap.add_argument("--speed", type=float, default=1e-3, help="approach speed, lattice units")
     ap.add_argument("--tol", type=float, default=1e-4)
+    ap.add_argument("--cost", nargs="*", default=None, metavar="CASE",
+                    help=f"time the effect on committed credible runs instead (default {' '.join(COST_CASES)})")
     args = ap.parse_args()
+    if args.cost is not None:
+        cost(args.cost or COST_CASES)
+        return
     offsets = lateral_offsets(args.offsets)
     print(f"sphere a = {args.radius:g}, box {args.box} x {args.box} x {args.height} (walls at z = 0 and "
           f"{args.height}), tau = {args.tau:g}, U = {args.speed:g}, cutoff {args.cutoff:g}, "

@@ -302,4 +302,19 @@ def _approach():
     spec = importlib.util.spec_from_file_location("bench_lubrication", ROOT / "benchmarks" / "lubrication.py")
     mod = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(mod)
-    return mod.approach_force
+    return mod.mean_approach_force
+
+
+def test_sphere_approaching_a_wall_meets_brenners_exact_force_within_5_percent_at_gaps_0_1_to_0_3_and_2():
+    # a = 6 spacings in a 32^3 box (walls at z = 0 and 32), tau = 1, the default cutoff (0.8), two
+    # lateral positions per gap. Without the correction the force at 0.1 spacing is 13 % of
+    # Brenner's; at 2 spacings (above the cutoff: nothing added) the box's images add ~4 %. Between
+    # 0.5 and 1 spacing the staircase sphere's resolved force is off by up to 7.5 % even with the
+    # correction (benchmarks/README.md, "Issue 44: lubrication"), so those gaps are not asserted.
+    mean_approach_force = _approach()
+    offsets = np.random.default_rng(0).random((2, 2))
+    for gap, without_max in ((0.1, 0.2), (0.2, 0.3), (0.3, 0.5), (2.0, 1.1)):
+        r = mean_approach_force(6.0, gap, 32, 32, offsets)
+        print(f"h = {gap}: Brenner {r['brenner']:.3f}, without {r['without']:.3f}, with {r['with']:.3f}")
+        assert r["with"] == pytest.approx(r["brenner"], rel=0.05)
+        assert r["without"] < without_max * r["brenner"]

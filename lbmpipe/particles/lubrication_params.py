@@ -20,9 +20,10 @@ class Lubrication(BaseModel):
 
     enabled: bool = Field(False, description="Add the lubrication correction. `false`: none (the paper's method).")
     cutoff_dx: float = Field(
-        1.0, gt=0, le=4,
+        0.8, gt=0, le=4,
         description="Gap (lattice spacings) below which the correction acts; it is zero above and continuous at it. About "
-        "one spacing: a thinner film has no fluid node (its force is not resolved), a thicker one is resolved.")
+        "one spacing, where the gap has no fluid node left; 0.8 fits Brenner's force on a sphere approaching a wall "
+        "best with Ladd's bounce-back at tau 1 (benchmarks/README.md, issue 44: lubrication).")
     min_gap_dx: float = Field(
         0.01, gt=0,
         description="Gap (lattice spacings) below which the force stops growing (saturates): surfaces this close count as "
@@ -37,5 +38,5 @@ class Lubrication(BaseModel):
         if self.min_gap_dx >= self.cutoff_dx:
             raise SceneError("numerics.lubrication.min_gap_dx",
                              f"the saturation gap {self.min_gap_dx:g} is not below the cutoff {self.cutoff_dx:g}",
-                             "give min_gap_dx < cutoff_dx (e.g. 0.01 and 1.0 lattice spacings)")
+                             "give min_gap_dx < cutoff_dx (e.g. 0.01 and 0.8 lattice spacings)")
         return self

@@ -34,7 +34,7 @@ class LubricationEffect(Effect):
     phase = "post"
     record_key = "lubrication"
 
-    def __init__(self, system, domain: Domain, mu: float, cutoff: float = 1.0, min_gap: float = 0.01,
+    def __init__(self, system, domain: Domain, mu: float, cutoff: float = 0.8, min_gap: float = 0.01,
                  edge_radius: float = 1.0, manifold_tol: float = CollisionParams.manifold_tol):
         if not 0.0 < min_gap < cutoff:
             raise ValueError(f"lubrication: need 0 < min_gap < cutoff, got {min_gap}, {cutoff}")
