@@ -28,13 +28,14 @@ def capture(sim):
 
 def restore(sim, state) -> None:
     """Put a captured state into ``sim`` (built from the same scene, or from a variant whose
-    effects stand in the same places); the sweep keeps its own name and floor."""
+    effects stand in the same places); the sweep keeps its own name and floor, the simulation its
+    timers (keyed by the effects' names)."""
     from lbmpipe import checkpoint as ckpt
 
     sweep = sim.sweep
-    name, rho_min = sweep.name, sweep.rho_min
+    name, rho_min, timers = sweep.name, sweep.rho_min, sim.timers
     ckpt.restore(sim, *state)
-    sweep.name, sweep.rho_min = name, rho_min
+    sweep.name, sweep.rho_min, sim.timers = name, rho_min, timers
 
 
 # ------------------------------------------------------------------------------------------------

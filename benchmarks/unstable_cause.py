@@ -245,9 +245,10 @@ def window(sim, probe, state, stop: int, node, log) -> list[dict]:
     return recs
 
 
-def run_variant(scene, variant, until_base: int, every: int, state=None, log=print) -> dict:
+def run_variant(scene, variant, until_base: int, every: int, peak_from: int, state=None, log=print) -> dict:
     """The scene with one change, from step 0 (``state`` None) or switched on a copied state,
-    to ``until_base`` steps of the run (twice as many at dt/2); guard on."""
+    to ``until_base`` steps of the run (twice as many at dt/2); guard on. The peaks are taken
+    from base step ``peak_from`` on (the window's start: after the start-up)."""
     from lbmpipe.errors import Unstable
 
     from lbmpipe.particles.coupling import ParticleMotion
@@ -267,29 +268,39 @@ def run_variant(scene, variant, until_base: int, every: int, state=None, log=pri
     f0 = probe.tallies()
     stride = every * scale
     while sim.step_count < until:
+        failed = False
         try:
             sim.step(min(stride - sim.step_count % stride, until - sim.step_count))
         except Unstable as exc:
             out["status"] = "unstable"
             out["message"] = str(exc)[:240]
             out["node"] = _node3(probe, sim.guard.scan(sim)["u_node"])
+            failed = True
+        if sim.step_count >= peak_from * scale or failed:  # a sample (the failing state's too)
+            st = probe.state()
+            g = sim.guard.scan(sim)
+            pa = probe.particles()
+            tl = probe.tallies()
+            if failed:
+                out["at_failure"] = {"u_max": round(g["u_max"] * scale, 4), "checker_max": round(st["checker_max"] * scale, 4),
+                                     "moving": pa["moving"], "force_ratio": round(tl["force_ratio"], 3),
+                                     "floor_node_updates": tl["floor_nodes"] - f0["floor_nodes"]}
+            peak["u_max"] = max(peak["u_max"], g["u_max"] * scale)
+            peak["checker_max"] = max(peak["checker_max"], st["checker_max"] * scale)
+            peak["all_locked_samples"] += int(pa["moving"] == 0)
+            peak["force_ratio_max"] = max(peak["force_ratio_max"], tl["force_ratio"])
+        if failed:
             break
-        st = probe.state()
-        g = sim.guard.last
-        pa = probe.particles()
-        tl = probe.tallies()
-        peak["u_max"] = max(peak["u_max"], g.get("u_max", 0.0) * scale)
-        peak["checker_max"] = max(peak["checker_max"], st["checker_max"] * scale)
-        peak["all_locked_samples"] += int(pa["moving"] == 0)
-        peak["force_ratio_max"] = max(peak["force_ratio_max"], tl["force_ratio"])
     out["steps_base"] = sim.step_count / scale
     tl = probe.tallies()
     out.update(peak)
     out["floor_node_updates"] = tl["floor_nodes"] - f0["floor_nodes"]
     out["mass_corr_added"] = tl["mass_corr"] - f0["mass_corr"]
     out["seconds"] = round(time.perf_counter() - t0, 1)
+    if "at_failure" in out:
+        log(f"    at the failure: {out['at_failure']}; {out['message'][:200]}")
     log(f"  {variant} ({'switched at ' + str(out['start']) if state is not None else 'from 0'}): {out['status']} at base "
-        f"step {out['steps_base']:g}; peak |u| {out['u_max']:.3f} (in the run's lattice units), checker "
+        f"step {out['steps_base']:g}; from step {peak_from}: peak |u| {out['u_max']:.3f} (the run's lattice units), checker "
         f"{out['checker_max']:.3f}, samples with every body at rest {out['all_locked_samples']}, F/F_ref max "
         f"{out['force_ratio_max']:.2f} [{out['seconds']} s]")
     return out
@@ -503,7 +514,9 @@ def main(argv=None) -> int:
     ap.add_argument("--variants", nargs="*", default=[*VARIANTS, *COUNTERFACTUALS],
                     help=f"of {', '.join([*VARIANTS, *COUNTERFACTUALS])}")
     ap.add_argument("--no-switched", action="store_true", help="skip the variants switched at the window's start")
-    ap.add_argument("--json", type=Path, default=None, help="write the evidence here")
+    ap.add_argument("--json", type=Path, default=None, help="write the evidence here (after every variant run too)")
+    ap.add_argument("--resume", action="store_true",
+                    help="keep the variant runs an interrupted invocation wrote to --json (same command and failure)")
     args = ap.parse_args(argv)
     import numba
 
@@ -543,29 +556,56 @@ def main(argv=None) -> int:
     for m in ev["mechanism"]:
         log(f"  MECHANISM: {m}")
     until = (fail["step"] if fail else around) + args.extra
-    ev["variants"] = []
-    described = {**VARIANTS, **COUNTERFACTUALS}
-    for v in args.variants:
-        if v not in described:
-            raise SystemExit(f"unknown variant {v!r}; choose from {', '.join(described)}")
-    for v in args.variants:
-        ev["variants"].append({"description": described[v], "mode": "from 0",
-                               **run_variant(scene, v, until, args.every, log=log)})
-    if not args.no_switched and hist["state"] is not None:
-        for v in args.variants:
-            if v in SWITCHABLE:
-                ev["variants"].append({"description": described[v], "mode": f"switched at {start}",
-                                       **run_variant(scene, v, until, args.every, state=hist["state"], log=log)})
     ev["checker_damping"] = damping_table(scene)
     ev["command"] = "NUMBA_NUM_THREADS=1 python benchmarks/unstable_cause.py " + " ".join(
         [str(args.case_dir)] + (["--around", str(args.around)] if args.around else [])
         + ["--window", str(args.window), "--extra", str(args.extra)])
-    ev["seconds"] = round(time.perf_counter() - t0, 1)
-    if args.json:
-        args.json.parent.mkdir(parents=True, exist_ok=True)
-        args.json.write_text(json.dumps(ev, indent=1, default=_jsonable) + "\n")
-        log(f"  wrote {args.json}")
+    described = {**VARIANTS, **COUNTERFACTUALS}
+    for v in args.variants:
+        if v not in described:
+            raise SystemExit(f"unknown variant {v!r}; choose from {', '.join(described)}")
+    plan = [(v, "from 0") for v in args.variants]
+    if not args.no_switched and hist["state"] is not None:
+        plan += [(v, f"switched at {start}") for v in args.variants if v in SWITCHABLE]
+    done = _resumable(args, ev) if args.resume else {}
+    ev["variants"] = []
+    _write(args.json, ev, t0, complete=False, log=None)
+    for v, mode in plan:
+        if (v, mode) in done:
+            ev["variants"].append({**done[(v, mode)], "resumed": True})  # run by the interrupted invocation
+            log(f"  {v} ({mode}): kept from {args.json}")
+            continue
+        state = hist["state"] if mode != "from 0" else None
+        ev["variants"].append({"description": described[v], "mode": mode,
+                               **run_variant(scene, v, until, args.every, start, state=state, log=log)})
+        _write(args.json, ev, t0, complete=False, log=None)  # a part done is kept if the process ends
+    _write(args.json, ev, t0, complete=True, log=log)
     return 0
+
+
+def _write(path, ev, t0, complete: bool, log) -> None:
+    if not path:
+        return
+    ev["complete"] = complete
+    ev["seconds"] = round(time.perf_counter() - t0, 1)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text(json.dumps(ev, indent=1, default=_jsonable) + "\n")
+    tmp.replace(path)
+    if log:
+        log(f"  wrote {path}")
+
+
+def _resumable(args, ev) -> dict:
+    """The variant runs of an earlier, interrupted invocation (``--json``) with the same command
+    whose baseline failed at the same step and node: {(variant, mode): entry}."""
+    if not args.json or not args.json.exists():
+        return {}
+    old = json.loads(args.json.read_text())
+    if old.get("command") != ev["command"] or old.get("reproduced", {}).get("step") != ev["reproduced"]["step"] \
+            or old.get("reproduced", {}).get("node") != ev["reproduced"]["node"]:
+        raise SystemExit(f"{args.json} was written by another command or failure; remove it or drop --resume")
+    return {(r["variant"], r["mode"]): r for r in old.get("variants", [])}
 
 
 def _jsonable(o):
