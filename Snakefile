@@ -11,6 +11,7 @@ from lbmpipe.reproduction.cases import CONFIG_SCHEMA, config_problems, level_run
 from lbmpipe.reproduction.convergence import write as write_convergence
 from lbmpipe.reproduction.methods import comparison_level
 from lbmpipe.reproduction.methods import write as write_method_comparison
+from lbmpipe.reproduction.robustness import write as write_robustness
 from lbmpipe.pipeline_config import config_file_problems
 from lbmpipe.reproduction.seeds import write_combined
 from lbmpipe.reproduction.statistics import write_case_outputs

@@ -108,7 +108,8 @@ def case_scene(name: str, case: dict, fidelity_name: str, fidelity: dict, packin
             group["file"] = str(packing_file)
         # A case without collisions (claim 14) switches off the particle-particle contacts only: the
         # pipe wall still holds the particles in (with the wall contacts off too they leave the pipe).
-        scene["particles"] = {"packed": [group], "collisions": {"pairs": bool(case.get("collisions", True))}}
+        scene["particles"] = {"packed": [group], "collisions": {"pairs": bool(case.get("collisions", True)),
+                                                                **fidelity.get("particle_collisions", {})}}
     return scene
 
 
@@ -387,7 +388,7 @@ def config_problems(config: dict, schema_path: str | Path, check=None) -> list[s
                 "Fix: add it under `fidelities` or pick an existing level (--config fidelity=smoke)"]
     for fname, fid in config["fidelities"].items():
         out.extend(mach_factor_problems(fname, fid))
-        for key in ("compare_with", "convergence_of"):  # levels that name another level
+        for key in ("compare_with", "convergence_of", "control_of", "refines"):  # levels that name another level
             other = fid.get(key)
             if other is not None and other not in config["fidelities"]:
                 out.append(f"config error in fidelities.{fname}.{key}: {other!r} is not a level. "

@@ -23,6 +23,7 @@ from lbmpipe.reproduction.cases import (case_scene, estimate_minutes, level_case
 from lbmpipe.reproduction.convergence import levels as convergence_levels
 from lbmpipe.reproduction.literate import study_level
 from lbmpipe.reproduction.methods import comparison_level
+from lbmpipe.reproduction.robustness import control_levels
 from lbmpipe.scene import Scene
 from lbmpipe.units import LatticeParams, derive
 
@@ -193,6 +194,9 @@ class Pipeline:
             extra += [f"results/{wildcards.fidelity}/method/{name}" for name in ("summary.json", "method_comparison.png")]
         if len(convergence_levels(self.config, wildcards.fidelity)) > 1:
             extra.append(f"results/{wildcards.fidelity}/convergence/summary.json")
+        if control_levels(self.config, wildcards.fidelity):
+            extra += [f"results/{wildcards.fidelity}/{name}" for name in
+                      ("robustness/summary.json", "robustness/cost_robustness.png", "tables/robustness.csv")]
         return extra
 
     def method_inputs(self, wildcards) -> list:
@@ -206,6 +210,38 @@ class Pipeline:
             for lvl in (other, wildcards.fidelity):
                 files += [ancient(f) for f in (f"results/{lvl}/cases/{run}/summary.json",
                                                f"results/{lvl}/cases/{run}/stats.json") if Path(f).exists()]
+        return files
+
+    def robustness_inputs(self, wildcards) -> list:
+        # the control levels' records present (their production is run apart: `snakemake controls`)
+        files = []
+        for lvl in control_levels(self.config, wildcards.fidelity):
+            for run in sorted(set(level_runs(self.config, lvl)) | set(level_cases(self.config, lvl))):
+                files += [ancient(f) for f in (f"results/{lvl}/cases/{run}/summary.json",
+                                               f"results/{lvl}/cases/{run}/stats.json") if Path(f).exists()]
+        return files
+
+    def claims_robustness(self, wildcards) -> dict:
+        # the controls' verdicts and the measured systematic term, where this level has controls
+        if not control_levels(self.config, wildcards.fidelity):
+            return {}
+        return {"controls": f"results/{wildcards.fidelity}/robustness/controls.csv",
+                "systematic": f"results/{wildcards.fidelity}/robustness/systematic.json"}
+
+    def control_targets(self, wildcards=None) -> list[str]:
+        """Every record of the default level's controls (`snakemake controls --config new_runs=all` runs
+        what is missing; under new_runs=none only what is present)."""
+        files = []
+        for lvl in control_levels(self.config, self.fidelity):
+            seeded = "seeds" in self.config["fidelities"][lvl]
+            for run in level_runs(self.config, lvl):
+                particle = self.config["cases"][run.partition("/seed")[0]].get("particles") is not None
+                files.append(f"results/{lvl}/cases/{run}/{'stats' if particle else 'summary'}.json")
+            if seeded:
+                files += [f"results/{lvl}/cases/{c}/stats.json" for c in level_cases(self.config, lvl)
+                          if self.config["cases"][c].get("particles") is not None]
+        if self.new_runs != "all":
+            files = [f for f in files if Path(f).exists()]
         return files
 
     def convergence_inputs(self, wildcards) -> list:

@@ -6,12 +6,16 @@ rule claims:
     conda:
         "../envs/lbmpipe.yaml"
     input:
+        # each verdict under the robustness controls and the measured systematic term, where the level has controls
+        unpack(PIPE.claims_robustness),
         tables=expand("results/{{fidelity}}/tables/{table}.csv", table=TABLES),
         profiles=expand("results/{{fidelity}}/cases/{case}/profile.csv", case=ACTIVE_CASES),
         # each verdict under the accurate method too, where a level compares with this one
         method=lambda w: ([f"results/{w.fidelity}/method/claims.csv"] if comparison_level(config, w.fidelity) else []),
     output:
-        report("results/{fidelity}/claims.csv", caption="../report/claims.rst", category="Claims"),
+        claims=report("results/{fidelity}/claims.csv", caption="../report/claims.rst", category="Claims"),
+        # per claim the verdict under each control and whether it is robust (lbmpipe.reproduction.robustness)
+        robustness="results/{fidelity}/tables/robustness.csv",
     log:
         "results/{fidelity}/logs/claims.log",
     script:
@@ -35,6 +39,36 @@ rule method_comparison:
         "results/{fidelity}/logs/method_comparison.log",
     run:
         write_method_comparison(config, wildcards.fidelity, Path("results"), Path(output.summary).parent)
+
+
+rule robustness:
+    """The robustness controls of this level (levels with `control_of` it): every claim's verdict under
+    each, the shifts per observable and the systematic term they give, the reference's convergence,
+    the run health side by side and the controls' cost (results/<level>/robustness/)."""
+    localrule: True
+    input:
+        PIPE.robustness_inputs,
+    output:
+        controls="results/{fidelity}/robustness/controls.csv",
+        shifts="results/{fidelity}/robustness/shifts.csv",
+        systematic="results/{fidelity}/robustness/systematic.json",
+        convergence="results/{fidelity}/robustness/convergence.csv",
+        health="results/{fidelity}/robustness/health.csv",
+        cost="results/{fidelity}/robustness/cost.csv",
+        figure="results/{fidelity}/robustness/cost_robustness.png",
+        figure_pdf="results/{fidelity}/robustness/cost_robustness.pdf",
+        summary="results/{fidelity}/robustness/summary.json",
+    log:
+        "results/{fidelity}/logs/robustness.log",
+    run:
+        write_robustness(config, wildcards.fidelity, Path("results"), Path(output.summary).parent)
+
+
+rule controls:
+    """The runs of the default level's robustness controls (issue 47): `snakemake -c2 controls --config
+    new_runs=all` runs every missing one (each checkpointed; cost: benchmarks/README.md)."""
+    input:
+        PIPE.control_targets,
 
 
 rule convergence:

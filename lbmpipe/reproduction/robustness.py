@@ -1,0 +1,545 @@
+"""Which of the paper's claims survive a better method (issue 47): every verdict under the
+robustness controls of a level, the systematic term of the verdict rule from their measured shifts,
+the reference's convergence, the run health side by side and the controls' cost.
+
+A level with ``control_of: <base>`` (``config.yaml``: ``credible_ma2``, ``credible_reference``,
+``credible_dx0625``, ``credible_gap05``) runs some of ``base``'s cases with one change. Written to
+``results/<base>/robustness/`` by :func:`write`:
+
+- ``controls.csv``: per claim and control, the control's verdict on its own runs (the existing
+  verdict machinery, :func:`lbmpipe.reproduction.claims.evaluate_claims`, on a view holding only
+  the control's cases) beside ``base``'s verdict on the same cases and packings (``baseline``), and
+  the ``status``: ``holds`` (the same verdict), ``changes`` (another one), ``not covered by
+  <control>`` (the claim compares no pair of cases the control runs), ``not run`` (none of the
+  control's runs is there) or ``partly run`` (the missing runs named: the verdict is on the runs
+  present). :func:`robust_column` makes ``robust_under_controls`` of it: ``yes`` when the verdict
+  holds under every control that covers it (all of them complete), ``no`` naming the controls that
+  change it, ``pending`` naming the controls not (fully) run, ``not covered by any control``.
+- ``shifts.csv``: per control, case and observable, ``base``'s value and the control's (the same
+  packings) and the shift: relative for mean |Omega| and the profile distance, in degrees for the
+  mean angle, absolute for an orientation-bin fraction. ``systematic.json``: the largest |shift|
+  per observable over every control and case (:func:`systematic_from_shifts`), with where it was
+  measured; ``claims.csv``'s ``verdict_with_systematic`` and ``robust`` use it (``config.yaml``'s
+  ``systematic`` values above zero override it).
+- ``convergence.csv``: the reference against its refinement (``refines``): :func:`convergence_check`.
+- ``health.csv``: per case the mass the particles' mass correction puts back (relative to the pipe's
+  fluid mass and to the mass through the pipe) and the share of samples at the density floor, the
+  paper's method (``base``) beside the reference (the control labelled ``reference``).
+- ``cost.csv`` and ``cost_robustness.png``: each control's core-hours (measured from its summaries,
+  else planned with the cost model) against the verdicts it changes.
+"""
+
+from __future__ import annotations
+
+import math
+import shutil
+import tempfile
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from ..outputs import write_json
+from .cases import level_cases, level_runs, level_seeds, split_run
+from .claim_rules import SYSTEMATIC_KEYS
+from .claims import evaluate_claims
+from .convergence import profile_distance
+from .health import read_flow_rate, read_json, mass_corrected_rel, mass_corrected_throughflow
+from .methods import SEED1_FILES, completed_record, stats_values
+from .plotting import plt, save
+from .statistics import aggregate
+
+CONTROL_COLUMNS = ["claim", "control", "level", "verdict", "baseline", "status", "runs_done", "runs_planned", "missing"]
+SHIFT_COLUMNS = ["control", "case", "observable", "key", "base", "base_ci95", "control_value", "control_ci95", "shift"]
+CONVERGENCE_COLUMNS = ["case", "observable", "coarse", "coarse_ci95", "fine", "fine_ci95", "rel_diff", "status", "figures"]
+HEALTH_COLUMNS = ["case", "level", "status", "mass_corrected_fluid", "mass_corrected_throughflow",
+                  "floor_sample_share", "samples"]
+#: the observable of each shift -> its key of the systematic term (claim_rules.SYSTEMATIC_KEYS)
+SYSTEMATIC_OF = {"omega": "omega_rel", "angle": "angle_deg", "fraction": "fraction_abs", "profile": "profile_rel_l2"}
+#: convergence check (issue 47 item 3): the two finest lattices agree within this, or within their
+#: combined interval, with intervals no wider than ``CONVERGED_MAX_CI``
+CONVERGED_REL, CONVERGED_MAX_CI = 0.05, 0.10
+#: the density floor of the runs (``numerics.density_floor``): a sample whose largest |rho - 1| reaches
+#: 1 - rho_min has a node at the floor
+FLOOR_RHO_MIN = 0.5
+
+
+def control_levels(config: dict, base: str) -> list[str]:
+    """The levels with ``control_of: base``, in the config's order."""
+    return [n for n, f in config["fidelities"].items() if f.get("control_of") == base]
+
+
+def control_label(config: dict, level: str) -> str:
+    return str(config["fidelities"][level].get("control", level))
+
+
+def reference_level(config: dict, base: str) -> str | None:
+    """The control labelled ``reference`` (the accurate method the paper's is judged against)."""
+    return next((c for c in control_levels(config, base) if control_label(config, c) == "reference"), None)
+
+
+def run_status(root: Path, level: str, run: str) -> str | None:
+    return (read_json(Path(root) / level / "cases" / run / "summary.json") or {}).get("status")
+
+
+def runs_done(config: dict, level: str, root: Path) -> tuple[list[str], list[str]]:
+    """(runs present, runs missing) of a level: a run is present when its summary says how it ended."""
+    runs = level_runs(config, level)
+    done = [r for r in runs if run_status(root, level, r) is not None]
+    return done, [r for r in runs if r not in done]
+
+
+# ------------------------------------------------------------------------------------------------
+# verdicts on a view of a level's cases
+
+
+def _copy_run(src: Path, dst: Path) -> bool:
+    if (read_json(src / "summary.json") or {}).get("status") is None:
+        return False
+    dst.mkdir(parents=True, exist_ok=True)
+    for name in SEED1_FILES:
+        if (src / name).exists():
+            shutil.copy2(src / name, dst / name)
+    return True
+
+
+def view(config: dict, level: str, cases: list[str], seeds: list[int], root: Path, work: Path) -> Path:
+    """A directory holding only ``cases`` of ``level`` with the packings ``seeds``: one packing ->
+    its run as the case (``methods.seed1_claims``); all of the level's packings -> the combined
+    records with their seeds (the pooling reads them); the tables aggregated."""
+    out = Path(work) / level
+    fid = config["fidelities"][level]
+    mine = level_seeds(fid)
+    for case in cases:
+        seeded = config["cases"][case].get("particles") is not None and "seeds" in fid
+        src = Path(root) / level / "cases" / case
+        if not seeded:
+            _copy_run(src, out / "cases" / case)
+        elif len(seeds) == 1:
+            _copy_run(src / f"seed{seeds[0]}", out / "cases" / case)
+        elif _copy_run(src, out / "cases" / case):
+            for k in [k for k in mine if k in seeds]:
+                _copy_run(src / f"seed{k}", out / "cases" / case / f"seed{k}")
+    aggregate(out, config["cases"])
+    return out
+
+
+def view_claims(config: dict, level: str, cases: list[str], seeds: list[int], root: Path, work: Path,
+                systematic: dict | None = None) -> pd.DataFrame:
+    """The claims of ``level`` evaluated from ``cases`` and packings ``seeds`` alone."""
+    sub = {c: config["cases"][c] for c in cases}
+    d = view(config, level, cases, seeds, root, work)
+    return evaluate_claims(d, sub, systematic or {k: 0.0 for k in SYSTEMATIC_KEYS})
+
+
+def _covered(row) -> bool:
+    """Whether a claim compares anything on a view (not 'inputs missing' with no comparison)."""
+    return not (str(row["reason"]).startswith("inputs missing") and str(row["carried_by"]).startswith("no "))
+
+
+def control_rows(baseline: pd.DataFrame, control: pd.DataFrame, label: str, level: str, done: list[str],
+                 missing: list[str]) -> pd.DataFrame:
+    """Per claim, the control's verdict beside the baseline's on the same cases and its status
+    (module docstring). ``baseline``/``control``: claims tables of the two views."""
+    rows = []
+    planned = len(done) + len(missing)
+    for _, b in baseline.iterrows():
+        k = int(b["claim"])
+        c = control[control["claim"] == k].iloc[0]
+        if not _covered(b):
+            status, verdict = f"not covered by {label}", ""
+        elif not done:
+            status, verdict = "not run", ""
+        else:
+            verdict = str(c["verdict"])
+            status = "holds" if verdict == str(b["verdict"]) else "changes"
+            if missing:
+                status = f"partly run ({status} on the runs present)"
+        rows.append({"claim": k, "control": label, "level": level, "verdict": verdict, "baseline": str(b["verdict"]),
+                     "status": status, "runs_done": len(done), "runs_planned": planned,
+                     "missing": "; ".join(missing)})
+    return pd.DataFrame(rows, columns=CONTROL_COLUMNS)
+
+
+def control_verdicts(config: dict, base: str, root: Path) -> pd.DataFrame:
+    """:func:`control_rows` for every control of ``base`` (empty without one)."""
+    frames = []
+    for lvl in control_levels(config, base):
+        cases = level_cases(config, lvl)
+        seeds = level_seeds(config["fidelities"][lvl])
+        done, missing = runs_done(config, lvl, root)
+        with tempfile.TemporaryDirectory() as work:
+            b = view_claims(config, base, cases, seeds, root, Path(work) / "base")
+            # a control with no run has no verdict to evaluate (its rows say "not run")
+            c = view_claims(config, lvl, cases, seeds, root, Path(work) / "control") if done else b
+        frames.append(control_rows(b, c, control_label(config, lvl), lvl, done, missing))
+    return pd.concat(frames, ignore_index=True) if frames else pd.DataFrame(columns=CONTROL_COLUMNS)
+
+
+def robust_column(base_verdicts: dict[int, str], controls: pd.DataFrame) -> dict[int, str]:
+    """``robust_under_controls`` per claim from :func:`control_rows`' table (module docstring)."""
+    out = {}
+    for k, verdict in base_verdicts.items():
+        rows = controls[controls["claim"] == k] if len(controls) else controls
+        covering = rows[~rows["status"].astype(str).str.startswith("not covered")] if len(rows) else rows
+        if not len(covering):
+            out[k] = "not covered by any control"
+            continue
+        changed = [r["control"] for _, r in covering.iterrows() if "changes" in str(r["status"])]
+        pending = [r["control"] for _, r in covering.iterrows() if str(r["status"]) == "not run"
+                   or str(r["status"]).startswith("partly run")]
+        if changed:
+            out[k] = "no: changes under " + ", ".join(changed) + (f" (pending: {', '.join(pending)})" if pending else "")
+        elif pending:
+            out[k] = "pending: " + ", ".join(pending) + " not (fully) run"
+        else:
+            out[k] = "yes" if verdict != "inconclusive" else "yes (inconclusive under every control)"
+    return out
+
+
+# ------------------------------------------------------------------------------------------------
+# shifts and the systematic term
+
+
+def _histogram(run_dir: Path) -> pd.DataFrame | None:
+    try:
+        h = pd.read_csv(Path(run_dir) / "orientation.csv")
+    except (OSError, ValueError, pd.errors.EmptyDataError):
+        return None
+    return h if len(h) else None
+
+
+def _observables(run_dir: Path) -> dict[tuple[str, str], tuple[float, float]]:
+    """(value, 95 % half-width) of each shifted observable of a completed run or case."""
+    rec = completed_record(run_dir)
+    if rec is None:
+        return {}
+    out = {("profile", "profile_distance"): (profile_distance(Path(run_dir) / "profile.csv"), float("nan"))}
+    for key, v in stats_values(rec[1]).items():
+        out[("omega" if key.startswith("mean_abs_omega") else "angle", key)] = v
+    h = _histogram(run_dir)
+    if h is not None and {"kind", "fraction"} <= set(h.columns):
+        for _, r in h.iterrows():
+            out[("fraction", f"{r['kind']}[{r['bin_lo_deg']:g}-{r['bin_hi_deg']:g}]")] = (
+                float(r["fraction"]), float(r.get("ci95", float("nan"))))
+    return out
+
+
+def shift_rows(config: dict, base: str, root: Path) -> pd.DataFrame:
+    """Per control, case and observable: ``base``'s value and the control's on the same packings
+    (one packing: seed 1 of both; all packings: the combined records) and the shift."""
+    rows = []
+    for lvl in control_levels(config, base):
+        fid = config["fidelities"][lvl]
+        one = len(level_seeds(fid)) == 1
+        for case in level_cases(config, lvl):
+            seeded = config["cases"][case].get("particles") is not None
+            sub = "seed1" if (one and seeded) else ""
+            bdir = Path(root) / base / "cases" / case / sub
+            cdir = Path(root) / lvl / "cases" / case / sub
+            b, c = _observables(bdir), _observables(cdir)
+            for (obs, key) in [k for k in b if k in c]:
+                (vb, cb), (vc, cc) = b[(obs, key)], c[(obs, key)]
+                if not (math.isfinite(vb) and math.isfinite(vc)):
+                    continue
+                rel = obs in ("omega", "profile")
+                shift = (vc - vb) / abs(vb) if rel and vb else (vc - vb)
+                rows.append({"control": control_label(config, lvl), "case": case, "observable": obs, "key": key,
+                             "base": vb, "base_ci95": cb, "control_value": vc, "control_ci95": cc, "shift": shift})
+    return pd.DataFrame(rows, columns=SHIFT_COLUMNS)
+
+
+def systematic_from_shifts(shifts: pd.DataFrame) -> dict:
+    """The largest |shift| per observable (the systematic term of the verdict rule) and where it was
+    measured: ``{"terms": {omega_rel, angle_deg, fraction_abs, profile_rel_l2}, "figures": {...}}``;
+    an observable with no shift measured is 0 and says so. The profile's term comes from the particle
+    cases only when there are any (the particle-free flows carry the wall's own error)."""
+    terms, figures = {}, {}
+    for obs, key in SYSTEMATIC_OF.items():
+        sub = shifts[shifts["observable"] == obs] if len(shifts) else shifts
+        if obs == "profile" and len(sub) and (~sub["case"].str.startswith("flow")).any():
+            sub = sub[~sub["case"].str.startswith("flow")]
+        if not len(sub):
+            terms[key], figures[key] = 0.0, "no shift measured (no control run)"
+            continue
+        i = sub["shift"].abs().idxmax()
+        r = sub.loc[i]
+        terms[key] = float(abs(r["shift"]))
+        figures[key] = (f"{r['control']} on {r['case']} {r['key']}: {r['base']:.4g} -> {r['control_value']:.4g} "
+                        f"({r['shift']:+.4g}; over {len(sub)} shifts)")
+    return {"terms": terms, "figures": figures}
+
+
+def systematic_terms_for(config: dict, measured: dict | None) -> dict:
+    """The systematic term the verdicts use: the measured one (:func:`systematic_from_shifts`'
+    ``terms``), each observable overridden by ``config.yaml``'s ``systematic`` where that is above 0."""
+    override = config.get("systematic") or {}
+    got = dict((measured or {}).get("terms") or {})
+    return {k: float(override[k]) if float(override.get(k, 0.0)) > 0 else float(got.get(k, 0.0))
+            for k in SYSTEMATIC_KEYS}
+
+
+# ------------------------------------------------------------------------------------------------
+# convergence of the reference
+
+
+def convergence_check(coarse: tuple[float, float], fine: tuple[float, float]) -> tuple[str, str]:
+    """Issue 47 item 3 on one observable: (value, 95 % half-width) on the two finest lattices.
+    ``converged`` when both intervals are at most :data:`CONVERGED_MAX_CI` of the value and the
+    values differ by less than :data:`CONVERGED_REL` of the finer one or less than their combined
+    interval; else ``not converged`` (or ``no interval``); with the figures."""
+    (a, ca), (b, cb) = coarse, fine
+    if not (math.isfinite(a) and math.isfinite(b)) or b == 0:
+        return "not available", "a value is missing"
+    rel = abs(a - b) / abs(b)
+    both = math.hypot(ca, cb) if math.isfinite(ca) and math.isfinite(cb) else float("nan")
+    wa, wb = ca / abs(a) if a else float("inf"), cb / abs(b)
+    figures = (f"{a:.4g} ± {ca:.2g} vs {b:.4g} ± {cb:.2g}: differ by {100 * rel:.1f} % "
+               f"(combined interval {100 * both / abs(b):.1f} %), intervals {100 * wa:.1f} % and {100 * wb:.1f} %")
+    if not math.isfinite(both):
+        return "no interval", figures
+    if max(wa, wb) > CONVERGED_MAX_CI:
+        return "not converged (interval wider than 10 %)", figures
+    if rel < CONVERGED_REL or abs(a - b) < both:
+        return "converged", figures
+    return "not converged", figures
+
+
+def convergence_rows(config: dict, base: str, root: Path) -> pd.DataFrame:
+    """The check on |Omega| per axis and the mean angle of every case a refining control
+    (``refines: <reference>``) shares with the reference: the reference (coarser) and the refinement
+    on packing seed 1 (the refinement runs one packing)."""
+    rows = []
+    for fine in control_levels(config, base):
+        coarse = config["fidelities"][fine].get("refines")
+        if coarse is None or coarse not in config["fidelities"]:
+            continue
+        for case in [c for c in level_cases(config, fine) if c in level_cases(config, coarse)]:
+            sub = "seed1" if config["cases"][case].get("particles") is not None else ""
+            a = completed_record(Path(root) / coarse / "cases" / case / sub)
+            b = completed_record(Path(root) / fine / "cases" / case / sub)
+            va, vb = (stats_values(a[1]) if a else {}), (stats_values(b[1]) if b else {})
+            for key in sorted(set(va) | set(vb)):
+                if key not in va or key not in vb:
+                    missing = coarse if key not in va else fine
+                    rows.append({"case": case, "observable": key, "status": "not run", "figures": f"{missing} missing"})
+                    continue
+                status, figures = convergence_check(va[key], vb[key])
+                rows.append({"case": case, "observable": key, "coarse": va[key][0], "coarse_ci95": va[key][1],
+                             "fine": vb[key][0], "fine_ci95": vb[key][1],
+                             "rel_diff": (va[key][0] - vb[key][0]) / vb[key][0] if vb[key][0] else float("nan"),
+                             "status": status, "figures": figures})
+            if not va and not vb:
+                rows.append({"case": case, "observable": "all", "status": "not run",
+                             "figures": f"{coarse} and {fine} missing"})
+    return pd.DataFrame(rows, columns=CONVERGENCE_COLUMNS)
+
+
+# ------------------------------------------------------------------------------------------------
+# health side by side
+
+
+def run_health_figures(run_dir: Path) -> dict:
+    """Mass put back by the mass correction (of the fluid mass; of the mass through the pipe) and
+    the share of samples with a node at the density floor, of one run (NaN where not recorded)."""
+    s = read_json(Path(run_dir) / "summary.json")
+    if s is None:
+        return {"status": "not run"}
+    fr = read_flow_rate(run_dir)
+    share, n = float("nan"), 0
+    if fr is not None and "max_density_deviation" in fr and len(fr):
+        dev = fr["max_density_deviation"].astype(float)
+        n = int(len(dev))
+        share = float((dev >= (1.0 - FLOOR_RHO_MIN) - 1e-9).mean())
+    return {"status": s.get("status"), "mass_corrected_fluid": mass_corrected_rel(s),
+            "mass_corrected_throughflow": mass_corrected_throughflow(s), "floor_sample_share": share, "samples": n}
+
+
+def health_rows(config: dict, base: str, root: Path) -> pd.DataFrame:
+    """Per case of the reference and run: the paper's method (``base``) beside the reference, mean
+    over the packings the reference runs; "not run" where the reference's runs are missing."""
+    ref = reference_level(config, base)
+    if ref is None:
+        return pd.DataFrame(columns=HEALTH_COLUMNS)
+    rows = []
+    for case in level_cases(config, ref):
+        runs = [r for r in level_runs(config, ref) if split_run(r)[0] == case]
+        for lvl in (base, ref):
+            got = [run_health_figures(Path(root) / lvl / "cases" / r) for r in runs]
+            ran = [g for g in got if g.get("status") != "not run"]
+            if not ran:
+                rows.append({"case": case, "level": lvl, "status": "not run"})
+                continue
+            statuses = sorted({str(g["status"]) for g in ran})
+            row = {"case": case, "level": lvl,
+                   "status": ";".join(statuses) + (f" ({len(ran)} of {len(runs)} runs)" if len(ran) < len(runs) else "")}
+            for k in ("mass_corrected_fluid", "mass_corrected_throughflow", "floor_sample_share"):
+                v = np.array([g.get(k, float("nan")) for g in ran], float)
+                row[k] = float(np.nanmean(v)) if np.isfinite(v).any() else float("nan")
+            row["samples"] = int(sum(g.get("samples", 0) for g in ran))
+            rows.append(row)
+    return pd.DataFrame(rows, columns=HEALTH_COLUMNS)
+
+
+# ------------------------------------------------------------------------------------------------
+# cost
+
+
+def level_core_hours(config: dict, level: str, root: Path) -> tuple[float, float, str]:
+    """(measured core-hours of the runs present, planned core-hours of the whole level, source).
+    Measured: each run's ``wall_seconds`` (one thread a run). Planned: the measured runs plus the
+    others predicted by the wall-time model of the committed runs (``cases.wall_model``, at a core
+    each), times the accurate method's measured cost over the paper method's (``accurate_factor``)
+    for a level with ``method: accurate``."""
+    from ..cost import predict
+    from ..scene import Scene
+    from ..units import derive
+    from .cases import case_scene, run_case, wall_model
+
+    measured, planned, predicted = 0.0, 0.0, 0
+    model = wall_model("credible", Path(root).parent)
+    fid = config["fidelities"][level]
+    factor = accurate_factor(config, root) if fid.get("method") == "accurate" else 1.0
+    for run in level_runs(config, level):
+        s = read_json(Path(root) / level / "cases" / run / "summary.json")
+        if s is not None and s.get("wall_seconds"):
+            measured += float(s["wall_seconds"])
+            planned += float(s["wall_seconds"])
+            continue
+        if model is None:
+            continue
+        name, case = run_case(config, run)
+        sc = Scene.model_validate(case_scene(name, case, level, fid))
+        planned += factor * predict(sc, derive(sc), model, 1.0)
+        predicted += 1
+    src = "measured" if not predicted else ("cost model" if not measured else "measured + cost model")
+    return measured / 3600, planned / 3600, src
+
+
+def accurate_factor(config: dict, root: Path) -> float:
+    """The accurate method's wall time over the paper method's on the same runs (``compare_with``
+    level's seed-1 runs against the compared level's); 1 when none is there."""
+    for name, fid in config["fidelities"].items():
+        other = fid.get("compare_with")
+        if other is None:
+            continue
+        a = b = 0.0
+        for run in level_runs(config, name):
+            sa = read_json(Path(root) / name / "cases" / run / "summary.json") or {}
+            sb = read_json(Path(root) / other / "cases" / run / "summary.json") or {}
+            if sa.get("wall_seconds") and sb.get("wall_seconds"):
+                a += float(sa["wall_seconds"])
+                b += float(sb["wall_seconds"])
+        if b > 0:
+            return a / b
+    return 1.0
+
+
+def cost_rows(config: dict, base: str, root: Path, controls: pd.DataFrame) -> pd.DataFrame:
+    rows = []
+    for lvl in control_levels(config, base):
+        label = control_label(config, lvl)
+        sub = controls[controls["control"] == label] if len(controls) else controls
+        measured, planned, src = level_core_hours(config, lvl, root)
+        done, missing = runs_done(config, lvl, root)
+        rows.append({"control": label, "level": lvl, "core_hours_measured": measured, "core_hours_planned": planned,
+                     "source": src, "runs_done": len(done), "runs_planned": len(done) + len(missing),
+                     "claims_covered": int((~sub["status"].str.startswith("not covered")).sum()) if len(sub) else 0,
+                     "claims_changed": ",".join(str(int(k)) for k in sub.loc[sub["status"].str.contains("changes"), "claim"])
+                     if len(sub) else "",
+                     "claims_held": int(sub["status"].str.contains("holds").sum()) if len(sub) else 0})
+    return pd.DataFrame(rows)
+
+
+def cost_figure(cost: pd.DataFrame, stem: Path) -> list[Path]:
+    """Verdicts robust against cost: per control, its core-hours (measured, else planned: hollow)
+    against the claims whose verdict holds and changes; a control not run says so."""
+    fig, ax = plt.subplots(figsize=(7, 4))
+    for i, r in cost.reset_index(drop=True).iterrows():
+        x = max(float(r["core_hours_measured"]) if r["runs_done"] else float(r["core_hours_planned"]), 1e-3)
+        changed = len([c for c in str(r["claims_changed"]).split(",") if c])
+        filled = r["runs_done"] == r["runs_planned"] and r["runs_planned"] > 0
+        ax.plot([x], [r["claims_held"]], "o", color=f"C{i}", mfc=f"C{i}" if filled else "white", ms=9,
+                label=f"{r['control']}: held {r['claims_held']}, changed {changed}")
+        ax.plot([x], [changed], "x", color=f"C{i}", ms=9)
+        note = ("not run (planned)" if r["runs_done"] == 0 else
+                "" if filled else f"partly run {r['runs_done']}/{r['runs_planned']}")
+        ax.annotate(f"{r['control']} {note}".strip(), (x, r["claims_held"]), textcoords="offset points",
+                    xytext=(5, 5), fontsize=8)
+    ax.set_xscale("log")
+    ax.set_xlabel("core-hours (filled: measured, all runs done; hollow: planned by the cost model or partly run)")
+    ax.set_ylabel("claims: verdict holds (o) / changes (x)")
+    ax.set_title("What accuracy costs: verdicts under each control against its core-hours")
+    if len(cost):
+        ax.legend(fontsize=7, loc="best")
+    return save(fig, stem)
+
+
+# ------------------------------------------------------------------------------------------------
+# the outputs
+
+
+def write(config: dict, base: str, root: Path, out_dir: Path) -> dict:
+    """Write the files of the module docstring under ``out_dir`` (``results/<base>/robustness/``) and
+    return the summary (also ``summary.json``)."""
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    controls = control_verdicts(config, base, root)
+    shifts = shift_rows(config, base, root)
+    measured = systematic_from_shifts(shifts)
+    conv = convergence_rows(config, base, root)
+    health = health_rows(config, base, root)
+    cost = cost_rows(config, base, root, controls)
+    controls.to_csv(out_dir / "controls.csv", index=False)
+    shifts.to_csv(out_dir / "shifts.csv", index=False, float_format="%.6g")
+    conv.to_csv(out_dir / "convergence.csv", index=False, float_format="%.6g")
+    health.to_csv(out_dir / "health.csv", index=False, float_format="%.6g")
+    cost.to_csv(out_dir / "cost.csv", index=False, float_format="%.4g")
+    cost_figure(cost, out_dir / "cost_robustness")
+    write_json(out_dir / "systematic.json", {**measured, "used": systematic_terms_for(config, measured)})
+    summary = {"base": base, "controls": [{"level": lvl, "control": control_label(config, lvl),
+                                           "runs_done": len(runs_done(config, lvl, root)[0]),
+                                           "runs_planned": len(level_runs(config, lvl))}
+                                          for lvl in control_levels(config, base)],
+               "systematic": measured, "reference": reference_level(config, base)}
+    write_json(out_dir / "summary.json", summary)
+    return summary
+
+
+def robustness_table(claims: pd.DataFrame, controls: pd.DataFrame) -> pd.DataFrame:
+    """One row per claim: the level's verdict, one column per control (its verdict, or its status
+    when it has none: not covered / not run), and ``robust_under_controls``."""
+    out = claims[["claim", "verdict", "verdict_with_systematic"]].copy()
+    for label in (list(dict.fromkeys(controls["control"])) if len(controls) else []):
+        sub = controls[controls["control"] == label].set_index("claim")
+
+        def cell(k, sub=sub):
+            r = sub.loc[k]
+            s = str(r["status"])
+            return s if s.startswith(("not covered", "not run")) else f"{r['verdict']} ({s}; baseline {r['baseline']})"
+        out[f"under {label}"] = out["claim"].map(cell)
+    out["robust_under_controls"] = out["claim"].map(robust_column(dict(zip(claims["claim"], claims["verdict"])),
+                                                                  controls))
+    return out
+
+
+def add_to_claims(claims_csv: Path, controls_csv: Path, table_csv: Path) -> pd.DataFrame:
+    """Add the robustness columns to a level's ``claims.csv`` (``verdict_under_<control>``, the
+    ``status_under_<control>`` and ``robust_under_controls``) and write the table
+    (:func:`robustness_table`) to ``table_csv``."""
+    claims = pd.read_csv(claims_csv)
+    try:
+        controls = pd.read_csv(controls_csv, dtype={"verdict": str, "missing": str}, keep_default_na=False)
+    except (OSError, pd.errors.EmptyDataError):
+        controls = pd.DataFrame(columns=CONTROL_COLUMNS)
+    for label in (list(dict.fromkeys(controls["control"])) if len(controls) else []):
+        sub = controls[controls["control"] == label].set_index("claim")
+        claims[f"verdict_under_{label}"] = claims["claim"].map(sub["verdict"])
+        claims[f"status_under_{label}"] = claims["claim"].map(sub["status"])
+    claims["robust_under_controls"] = claims["claim"].map(
+        robust_column(dict(zip(claims["claim"], claims["verdict"])), controls))
+    claims.to_csv(claims_csv, index=False)
+    table = robustness_table(claims, controls)
+    Path(table_csv).parent.mkdir(parents=True, exist_ok=True)
+    table.to_csv(table_csv, index=False)
+    return table

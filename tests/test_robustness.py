@@ -1,0 +1,179 @@
+"""The robustness controls of issue 47 (lbmpipe.reproduction.robustness): the verdict under each
+control with "not run" / "not covered" / "partly run" stated, robust only when every covering
+control holds, the systematic term from the largest measured shift, the convergence check, the
+health side by side, and the control levels in the config and the DAG."""
+
+from __future__ import annotations
+
+import json
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pandas as pd
+import pytest
+import yaml
+
+from lbmpipe.reproduction import robustness as R
+from lbmpipe.reproduction.cases import CONFIG_SCHEMA, case_scene, config_problems, level_runs
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _claims(verdicts: dict[int, str], uncovered=()) -> pd.DataFrame:
+    rows = []
+    for k, v in verdicts.items():
+        miss = k in uncovered
+        rows.append({"claim": k, "verdict": "inconclusive" if miss else v,
+                     "reason": "inputs missing: x not run" if miss else "pooled interval ...",
+                     "carried_by": "no comparison" if miss else "2 of 3 significant"})
+    return pd.DataFrame(rows)
+
+
+def test_a_control_not_run_says_not_run_and_a_claim_it_does_not_compare_is_not_covered():
+    base = _claims({1: "reproduced", 2: "contradicted"}, uncovered=(2,))
+    rows = R.control_rows(base, base, "Ma/2", "lvl", done=[], missing=["a/seed1", "b/seed1"])
+    assert list(rows["status"]) == ["not run", "not covered by Ma/2"]
+    assert rows["missing"].iloc[0] == "a/seed1; b/seed1"
+    robust = R.robust_column({1: "reproduced", 2: "contradicted"}, rows)
+    assert robust[1].startswith("pending: Ma/2") and robust[2] == "not covered by any control"
+
+
+def test_robust_only_when_every_covering_control_holds_and_a_change_names_its_control():
+    base = _claims({1: "reproduced", 2: "reproduced", 3: "contradicted"}, uncovered=(3,))
+    same = _claims({1: "reproduced", 2: "reproduced", 3: "contradicted"})
+    changed = _claims({1: "reproduced", 2: "inconclusive", 3: "reproduced"})
+    a = R.control_rows(base, same, "Ma/2", "a", done=["x"], missing=[])
+    b = R.control_rows(base, changed, "reference", "b", done=["x", "y"], missing=[])
+    rows = pd.concat([a, b], ignore_index=True)
+    assert list(b["status"]) == ["holds", "changes", "not covered by reference"]
+    robust = R.robust_column({1: "reproduced", 2: "reproduced", 3: "contradicted"}, rows)
+    assert robust[1] == "yes"
+    assert robust[2] == "no: changes under reference"
+    assert robust[3] == "not covered by any control"
+
+
+def test_a_partly_run_control_names_its_missing_runs_and_keeps_the_claim_pending():
+    base = _claims({1: "reproduced"})
+    rows = R.control_rows(base, base, "reference", "b", done=["c/seed1"], missing=["c/seed2", "c/seed3"])
+    assert rows["status"].iloc[0] == "partly run (holds on the runs present)"
+    assert rows["missing"].iloc[0] == "c/seed2; c/seed3"
+    assert R.robust_column({1: "reproduced"}, rows)[1] == "pending: reference not (fully) run"
+
+
+def test_systematic_term_is_the_largest_shift_per_observable_and_a_config_value_overrides_it():
+    shifts = pd.DataFrame([
+        {"control": "Ma/2", "case": "a", "observable": "omega", "key": "mean_abs_omega_x", "base": 1.0,
+         "base_ci95": 0.1, "control_value": 1.06, "control_ci95": 0.1, "shift": 0.06},
+        {"control": "reference", "case": "b", "observable": "omega", "key": "mean_abs_omega_z", "base": 0.5,
+         "base_ci95": 0.1, "control_value": 0.44, "control_ci95": 0.1, "shift": -0.12},
+        {"control": "reference", "case": "b", "observable": "angle", "key": "mean_angle_deg", "base": 40.0,
+         "base_ci95": 1.0, "control_value": 42.5, "control_ci95": 1.0, "shift": 2.5},
+        {"control": "reference", "case": "flow_re9.4", "observable": "profile", "key": "profile_distance",
+         "base": 0.02, "base_ci95": 0.0, "control_value": 0.01, "control_ci95": 0.0, "shift": -0.5},
+        {"control": "reference", "case": "b", "observable": "profile", "key": "profile_distance",
+         "base": 0.2, "base_ci95": 0.0, "control_value": 0.22, "control_ci95": 0.0, "shift": 0.1},
+    ])
+    got = R.systematic_from_shifts(shifts)
+    assert got["terms"]["omega_rel"] == pytest.approx(0.12)
+    assert got["terms"]["angle_deg"] == pytest.approx(2.5)
+    assert got["terms"]["profile_rel_l2"] == pytest.approx(0.1)  # the particle cases', not the flow's wall error
+    assert got["terms"]["fraction_abs"] == 0.0 and "no shift measured" in got["figures"]["fraction_abs"]
+    assert "reference on b mean_abs_omega_z" in got["figures"]["omega_rel"]
+    used = R.systematic_terms_for({"systematic": {"omega_rel": 0.0, "angle_deg": 5.0}}, got)
+    assert used["omega_rel"] == pytest.approx(0.12) and used["angle_deg"] == 5.0
+
+
+@pytest.mark.parametrize("coarse, fine, status", [
+    ((1.00, 0.05), (1.03, 0.05), "converged"),                       # 3 % apart
+    ((1.00, 0.08), (1.12, 0.08), "not converged"),                   # 10.7 % apart, combined 10.1 %
+    ((1.00, 0.09), (1.10, 0.09), "converged"),                       # 9 % apart, within the combined 11.6 %
+    ((1.00, 0.15), (1.01, 0.05), "not converged (interval wider than 10 %)"),
+])
+def test_reference_converges_when_the_two_finest_lattices_agree_within_5_percent_or_their_intervals(coarse, fine,
+                                                                                                     status):
+    got, figures = R.convergence_check(coarse, fine)
+    assert got == status
+    assert "differ by" in figures
+
+
+def _run(d: Path, status="completed", floor_devs=(0.1, 0.5, 0.2, 0.6), mass_rel=0.2):
+    d.mkdir(parents=True, exist_ok=True)
+    (d / "summary.json").write_text(json.dumps({
+        "status": status, "steps": 1000, "mass_correction": {"mass_added_rel": mass_rel},
+        "lattice": {"fluid_nodes": 1000.0, "flow_rate_lu": 10.0}}))
+    pd.DataFrame({"t_s": range(len(floor_devs)), "max_density_deviation": floor_devs}).to_csv(d / "flow_rate.csv",
+                                                                                              index=False)
+
+
+def test_health_side_by_side_gives_mass_put_back_and_floor_share_and_not_run_for_a_missing_reference(tmp_path):
+    config = {"cases": {"cube8_c30_re9.4": {"reynolds": 9.4, "particles": {"shape": "cube", "edge_mm": 8,
+                                                                         "concentration": 0.3}},
+                        "flow_re9.4": {"reynolds": 9.4}},
+              "fidelities": {"base": {"seeds": 2}, "ref": {"seeds": 2, "control_of": "base", "control": "reference",
+                                                           "cases": ["cube8_c30_re9.4", "flow_re9.4"]}}}
+    _run(tmp_path / "base/cases/cube8_c30_re9.4/seed1")
+    _run(tmp_path / "base/cases/cube8_c30_re9.4/seed2", floor_devs=(0.1, 0.1, 0.1, 0.1), mass_rel=0.4)
+    _run(tmp_path / "ref/cases/cube8_c30_re9.4/seed1", floor_devs=(0.1, 0.1), mass_rel=0.0)
+    rows = R.health_rows(config, "base", tmp_path).set_index(["case", "level"])
+    b = rows.loc[("cube8_c30_re9.4", "base")]
+    assert b["mass_corrected_fluid"] == pytest.approx(0.3)                    # mean of 0.2 and 0.4
+    assert b["mass_corrected_throughflow"] == pytest.approx(0.3 * 1000 / (10 * 1000))
+    assert b["floor_sample_share"] == pytest.approx(0.25)                     # 2 of 4, then 0 of 4
+    r = rows.loc[("cube8_c30_re9.4", "ref")]
+    assert r["status"] == "completed (1 of 2 runs)" and r["mass_corrected_fluid"] == 0.0
+    assert rows.loc[("flow_re9.4", "ref"), "status"] == "not run"
+
+
+def _config() -> dict:
+    return yaml.safe_load((ROOT / "config.yaml").read_text())
+
+
+def test_control_levels_validate_and_each_changes_one_thing_of_credible():
+    config = _config()
+    assert config_problems(config, ROOT / CONFIG_SCHEMA) == []
+    levels = R.control_levels(config, "credible")
+    assert [R.control_label(config, lvl) for lvl in levels] == ["Ma/2", "reference", "dx 0.625 mm",
+                                                                 "gap 0.5 + lubrication"]
+    assert R.reference_level(config, "credible") == "credible_reference"
+    fid = config["fidelities"]
+    assert len(level_runs(config, "credible_reference")) == 3 * 12 + 2  # 3 packings on every particle case
+    # (d): the scene's contact gap halved and lubrication on, the rest the paper's
+    sc = case_scene("cube8_c30_re9.4", config["cases"]["cube8_c30_re9.4"], "credible_gap05", fid["credible_gap05"])
+    assert sc["particles"]["collisions"]["contact_gap_dx"] == 0.5
+    assert sc["numerics"]["lubrication"] == {"enabled": True}
+    plain = case_scene("cube8_c30_re9.4", config["cases"]["cube8_c30_re9.4"], "credible", fid["credible"])
+    assert "contact_gap_dx" not in plain["particles"]["collisions"]
+    assert sc["numerics"]["dt_s"] == plain["numerics"]["dt_s"]
+    half = case_scene("cube8_c30_re9.4", config["cases"]["cube8_c30_re9.4"], "credible_ma2", fid["credible_ma2"])
+    assert half["numerics"]["dt_s"] == pytest.approx(plain["numerics"]["dt_s"] / 2)
+
+
+def test_a_control_naming_an_unknown_level_is_a_config_error():
+    config = _config()
+    config["fidelities"]["credible_ma2"]["control_of"] = "credibel"
+    problems = config_problems(config, ROOT / CONFIG_SCHEMA)
+    assert any("fidelities.credible_ma2.control_of" in p and "credibel" in p for p in problems)
+
+
+def _snakemake() -> str:
+    return shutil.which("snakemake", path=str(Path(sys.executable).parent)) or "snakemake"
+
+
+def test_controls_target_plans_only_the_control_levels_runs_and_nothing_under_new_runs_none():
+    config = _config()
+    levels = R.control_levels(config, "credible")
+    res = subprocess.run([_snakemake(), "-n", "--nolock", "controls", "--config", "new_runs=all"], cwd=ROOT,
+                         capture_output=True, text=True, timeout=600)
+    assert res.returncode == 0, res.stderr[-2000:]
+    out = res.stdout + res.stderr
+    fids = {line.split("fidelity=")[1].split(",")[0].strip() for line in out.splitlines() if "fidelity=" in line}
+    assert fids and fids <= set(levels), fids
+    runs = [r for lvl in levels for r in level_runs(config, lvl)]
+    done = [r for lvl in levels for r in level_runs(config, lvl)
+            if (ROOT / "results" / lvl / "cases" / r / "summary.json").exists()]
+    assert out.count("rule simulate_") == len(runs) - len(done)
+    none = subprocess.run([_snakemake(), "-n", "--nolock", "controls"], cwd=ROOT, capture_output=True, text=True,
+                          timeout=600)
+    assert none.returncode == 0 and "rule simulate_" not in none.stdout + none.stderr
