@@ -177,3 +177,30 @@ def test_controls_target_plans_only_the_control_levels_runs_and_nothing_under_ne
     none = subprocess.run([_snakemake(), "-n", "--nolock", "controls"], cwd=ROOT, capture_output=True, text=True,
                           timeout=600)
     assert none.returncode == 0 and "rule simulate_" not in none.stdout + none.stderr
+
+
+def test_document_section_counts_robust_changed_pending_and_not_covered_apart(tmp_path):
+    (tmp_path / "tables").mkdir()
+    (tmp_path / "robustness").mkdir()
+    pd.DataFrame({"claim": [1, 2, 3, 4], "verdict": ["reproduced"] * 4,
+                  "robust_under_controls": ["yes", "no: changes under reference", "pending: Ma/2 not (fully) run",
+                                            "not covered by any control"]}).to_csv(tmp_path / "tables/robustness.csv",
+                                                                                   index=False)
+    pd.DataFrame([{"control": "Ma/2", "level": "a", "runs_done": 0, "runs_planned": 3, "core_hours_measured": 0.0,
+                   "core_hours_planned": 1.5, "source": "cost model", "claims_changed": ""},
+                  {"control": "reference", "level": "b", "runs_done": 2, "runs_planned": 2, "core_hours_measured": 2.0,
+                   "core_hours_planned": 2.0, "source": "measured", "claims_changed": "2"}]).to_csv(
+        tmp_path / "robustness/cost.csv", index=False)
+    sec = R.robustness_section(tmp_path, tmp_path)
+    assert sec["counts"] == {"robust": 1, "changed": 1, "pending": 1, "not covered": 1}
+    assert sec["not_run"] == ["Ma/2"]
+    assert sec["cost"]["rows"][0][-1] == "not run" and sec["cost"]["rows"][1][-1] == "complete"
+
+
+def test_the_unstable_runs_name_the_measured_mechanism_not_the_guards_guess():
+    causes = {c["case"]: c for c in R.unstable_causes(ROOT / "results" / "credible")}
+    assert "checkerboard" in causes["cube24_c30_re26"]["mechanism"]
+    assert "refill of nodes uncovered" in causes["cube24_c30_re26"]["mechanism"]
+    assert "dt_half (from 0): completed" in causes["cube24_c30_re26"]["variants"]
+    assert "jam lock" in causes["cyl16x16_c50_re26"]["mechanism"]
+    assert not causes["cyl16x16_c50_re26"]["complete"]

@@ -27,6 +27,7 @@ import jinja2
 import pandas as pd
 
 from . import health
+from .robustness import robustness_section
 from .document_sections import (DECISIONS, PAPER_CAPTIONS, case_rows, convergence_section, figure_entries, fmt,
                                 health_section, method_comparison_section, method_section, our_caption,
                                 parameter_rows, read_table, runtime_section, stationarity_section, study_section,
@@ -161,7 +162,9 @@ def claims_summary(claims) -> list[dict]:
                      "verdict": str(r.get("verdict", "")), "carried": _text(r, "carried_by", "–"),
                      "without": (f"{_text(r, 'verdict_without_frozen_locked', '–')} / "
                                  f"{_text(r, 'verdict_without_flagged', '–')}"),
-                     "robust": _text(r, "robust", "–"),
+                     # with the systematic term; then under the robustness controls (issue 47), where there are any
+                     "robust": _text(r, "robust", "–") + (f"; under the controls: {_text(r, 'robust_under_controls')}"
+                                                          if _text(r, "robust_under_controls") else ""),
                      "number": number, "reason": reason,
                      # the verdict under the accurate method (seed 1), where a level compares with this one
                      "method": _method_cell(r) if "same_under_both_methods" in r else None})
@@ -358,6 +361,7 @@ def build_context(repo_root: Path, fid_dir: Path, fidelity: str, config: dict, o
         "runtime": runtime_section(fid_dir, fidelity),
         "method": method_comparison_section(fid_dir, fidelity, config, out_dir),
         "convergence": convergence_section(fid_dir, fidelity, config, out_dir),
+        "robustness": robustness_section(fid_dir, out_dir),
         "stationarity": stationarity_section(fid_dir),
         "missing": lambda rel: f"not built at this level: `{_rel_to(fid_dir, repo_root)}/{rel}` missing",
     }

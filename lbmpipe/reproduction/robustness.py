@@ -39,11 +39,16 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from ..cost import predict
 from ..outputs import write_json
-from .cases import level_cases, level_runs, level_seeds, split_run
+from ..scene import Scene
+from ..units import derive
+from .cases import case_scene, level_cases, level_runs, level_seeds, run_case, split_run, wall_model
 from .claim_rules import SYSTEMATIC_KEYS
 from .claims import evaluate_claims
 from .convergence import profile_distance
+from .document_sections import table_of
+from .equations import relative_href
 from .health import read_flow_rate, read_json, mass_corrected_rel, mass_corrected_throughflow
 from .methods import SEED1_FILES, completed_record, stats_values
 from .plotting import plt, save
@@ -391,11 +396,6 @@ def level_core_hours(config: dict, level: str, root: Path) -> tuple[float, float
     others predicted by the wall-time model of the committed runs (``cases.wall_model``, at a core
     each), times the accurate method's measured cost over the paper method's (``accurate_factor``)
     for a level with ``method: accurate``."""
-    from ..cost import predict
-    from ..scene import Scene
-    from ..units import derive
-    from .cases import case_scene, run_case, wall_model
-
     measured, planned, predicted = 0.0, 0.0, 0
     model = wall_model("credible", Path(root).parent)
     fid = config["fidelities"][level]
@@ -543,3 +543,64 @@ def add_to_claims(claims_csv: Path, controls_csv: Path, table_csv: Path) -> pd.D
     Path(table_csv).parent.mkdir(parents=True, exist_ok=True)
     table.to_csv(table_csv, index=False)
     return table
+
+
+# ------------------------------------------------------------------------------------------------
+# the document
+
+
+def unstable_causes(fid_dir: Path) -> list[dict]:
+    """The measured cause of each unstable run (``unstable/<case>.json`` of
+    ``benchmarks/unstable_cause.py``): the guard's message says "likely cause"; this is the
+    mechanism the evidence shows, and the variants' outcomes."""
+    out = []
+    for path in sorted((Path(fid_dir) / "unstable").glob("*.json")):
+        d = read_json(path) or {}
+        variants = "; ".join(f"{v.get('variant')} ({v.get('mode')}): {v.get('status')}" for v in d.get("variants") or [])
+        out.append({"case": d.get("case", path.stem), "scene": d.get("scene", ""),
+                    "step": (d.get("committed") or {}).get("steps"),
+                    "mechanism": " ".join(d.get("mechanism") or []) or "not measured",
+                    "variants": variants or "none run", "complete": bool(d.get("complete")),
+                    "file": path.name})
+    return out
+
+
+def robustness_section(fid_dir: Path, out_dir: Path) -> dict | None:
+    """The document's robustness section (``paper/reproduction.md.j2``) from
+    ``tables/robustness.csv`` and ``robustness/``; None where the level has no controls."""
+    fid_dir = Path(fid_dir)
+    rob = fid_dir / "robustness"
+    try:
+        table = pd.read_csv(fid_dir / "tables" / "robustness.csv", keep_default_na=False)
+        cost = pd.read_csv(rob / "cost.csv", keep_default_na=False)
+    except (OSError, pd.errors.EmptyDataError):
+        return None
+    if not len(cost):
+        return None
+    robust = table["robust_under_controls"].astype(str)
+    counts = {"robust": int((robust.str.startswith("yes")).sum()), "changed": int(robust.str.startswith("no:").sum()),
+              "pending": int(robust.str.startswith("pending").sum()),
+              "not covered": int(robust.str.startswith("not covered").sum())}
+    cost_show = cost[["control", "level", "runs_done", "runs_planned", "core_hours_measured", "core_hours_planned",
+                      "source", "claims_changed"]].copy()
+    cost_show["status"] = [("not run" if r.runs_done == 0 else "complete" if r.runs_done == r.runs_planned else
+                            f"partly run ({r.runs_done} of {r.runs_planned})") for r in cost.itertuples()]
+
+    def read(name):
+        try:
+            return pd.read_csv(rob / name, keep_default_na=False)
+        except (OSError, pd.errors.EmptyDataError):
+            return pd.DataFrame()
+    sysj = read_json(rob / "systematic.json") or {}
+    fig = rob / "cost_robustness.png"
+    health = read("health.csv")
+    conv = read("convergence.csv")
+    return {"table": table_of(table), "counts": counts, "cost": table_of(cost_show),
+            "not_run": [r.control for r in cost.itertuples() if r.runs_done == 0],
+            "planned_total": float(cost["core_hours_planned"].sum()),
+            "systematic": [{"key": k, "value": v, "figures": (sysj.get("figures") or {}).get(k, "")}
+                           for k, v in (sysj.get("used") or {}).items()],
+            "figure": relative_href(fig, Path(out_dir)) if fig.exists() else None,
+            "health": table_of(health) if len(health) else None,
+            "convergence": table_of(conv) if len(conv) else None,
+            "unstable": unstable_causes(fid_dir)}
