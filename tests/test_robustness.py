@@ -204,3 +204,28 @@ def test_the_unstable_runs_name_the_measured_mechanism_not_the_guards_guess():
     assert "dt_half (from 0): completed" in causes["cube24_c30_re26"]["variants"]
     assert "jam lock" in causes["cyl16x16_c50_re26"]["mechanism"]
     assert not causes["cyl16x16_c50_re26"]["complete"]
+
+
+def test_a_control_identical_to_the_base_holds_every_claim_it_covers_with_zero_shifts(tmp_path):
+    """End to end on committed runs: the control level's seed-1 runs are copies of the base's, so every
+    covered verdict holds, the shifts are 0 and the systematic term is 0 (measured, not defaulted)."""
+    config = _config()
+    cases = ["cube8_c30_re9.4", "cube8_c30_re26"]  # claim 6's pair at 30 %, 8 mm
+    config["fidelities"] = {"credible": config["fidelities"]["credible"],
+                            "copy": {**config["fidelities"]["credible"], "seeds": 1, "control_of": "credible",
+                                     "control": "copy", "cases": cases}}
+    for case in cases:
+        src = ROOT / "results/credible/cases" / case
+        shutil.copytree(src, tmp_path / "credible/cases" / case)
+        shutil.copytree(src / "seed1", tmp_path / "copy/cases" / case / "seed1")
+        shutil.copytree(src / "seed1", tmp_path / "copy/cases" / case, dirs_exist_ok=True)
+    rows = R.control_verdicts(config, "credible", tmp_path)
+    covered = rows[~rows["status"].str.startswith("not covered")]
+    assert set(covered["claim"]) >= {6} and set(covered["status"]) == {"holds"}
+    assert (rows.loc[rows["claim"] == 3, "status"] == "not covered by copy").all()
+    shifts = R.shift_rows(config, "credible", tmp_path)
+    assert len(shifts) and set(shifts["observable"]) >= {"omega", "angle", "fraction", "profile"}
+    assert shifts["shift"].abs().max() == 0.0
+    sys_ = R.systematic_from_shifts(shifts)
+    assert sys_["terms"] == {"omega_rel": 0.0, "angle_deg": 0.0, "fraction_abs": 0.0, "profile_rel_l2": 0.0}
+    assert "over" in sys_["figures"]["omega_rel"]  # measured, with its figures

@@ -453,25 +453,29 @@ def cost_rows(config: dict, base: str, root: Path, controls: pd.DataFrame) -> pd
 
 def cost_figure(cost: pd.DataFrame, stem: Path) -> list[Path]:
     """Verdicts robust against cost: per control, its core-hours (measured, else planned: hollow)
-    against the claims whose verdict holds and changes; a control not run says so."""
-    fig, ax = plt.subplots(figsize=(7, 4))
+    against the claims it covers (square), whose verdict holds (o) and changes (x) under it; a
+    control not (fully) run is labelled so."""
+    fig, ax = plt.subplots(figsize=(7.5, 4.5))
     for i, r in cost.reset_index(drop=True).iterrows():
         x = max(float(r["core_hours_measured"]) if r["runs_done"] else float(r["core_hours_planned"]), 1e-3)
         changed = len([c for c in str(r["claims_changed"]).split(",") if c])
         filled = r["runs_done"] == r["runs_planned"] and r["runs_planned"] > 0
-        ax.plot([x], [r["claims_held"]], "o", color=f"C{i}", mfc=f"C{i}" if filled else "white", ms=9,
-                label=f"{r['control']}: held {r['claims_held']}, changed {changed}")
+        face = f"C{i}" if filled else "white"
+        ax.plot([x], [r["claims_covered"]], "s", color=f"C{i}", mfc=face, ms=8)
+        ax.plot([x], [r["claims_held"]], "o", color=f"C{i}", mfc=face, ms=9,
+                label=f"{r['control']}: covers {r['claims_covered']}, held {r['claims_held']}, changed {changed}")
         ax.plot([x], [changed], "x", color=f"C{i}", ms=9)
         note = ("not run (planned)" if r["runs_done"] == 0 else
-                "" if filled else f"partly run {r['runs_done']}/{r['runs_planned']}")
-        ax.annotate(f"{r['control']} {note}".strip(), (x, r["claims_held"]), textcoords="offset points",
-                    xytext=(5, 5), fontsize=8)
+                "measured" if filled else f"partly run {r['runs_done']}/{r['runs_planned']}")
+        ax.annotate(f"{r['control']}: {note}", (x, r["claims_covered"]), textcoords="offset points",
+                    xytext=(6, 6 + 11 * (i % 3)), fontsize=7, color=f"C{i}")
     ax.set_xscale("log")
-    ax.set_xlabel("core-hours (filled: measured, all runs done; hollow: planned by the cost model or partly run)")
-    ax.set_ylabel("claims: verdict holds (o) / changes (x)")
+    ax.set_ylim(-0.7, 15.5)
+    ax.set_xlabel("core-hours (filled: measured, every run done; hollow: planned by the cost model, or partly run)")
+    ax.set_ylabel("claims: covered (square), verdict holds (o), changes (x)")
     ax.set_title("What accuracy costs: verdicts under each control against its core-hours")
     if len(cost):
-        ax.legend(fontsize=7, loc="best")
+        ax.legend(fontsize=7, loc="center right")
     return save(fig, stem)
 
 
