@@ -22,7 +22,12 @@ aspect ratio ``r_e`` (Bretherton 1962: any body of revolution does). For ``L/D =
   reference (``R_E_ZHANG``).
 * For context only: Cox's (1971) slender-body ``1.24 r / sqrt(ln r)`` gives 2.98 (not valid at
   ``r = 2``) and the experimental fit for long fibres ``0.742 r - 0.0017 r^2`` (Forgacs & Mason
-  1959) gives 1.48: the equivalent ratio of a short cylinder is known to a few per cent at best.
+  1959) gives 1.48. Published rules disagree at ``L/D = 2``, and the residual of Zhang's fit there is
+  not known to us: the reference is uncertain by a few per cent.
+
+Measured (``benchmarks/README.md``, "Issue 44: Jeffery orbit"; D = 8, Re_p = 0.1): the accurate
+method's period is +4.0 % / +4.1 % above Jeffery's at tau 1 / 1.78 in a box of 6 diameters, +2.7 %
+in one of 12 (about +2.5 % unbounded); the paper's +3.6 % / +6.0 %.
 
 Measured (``period``): ``phi(t)`` from the body quaternion every ``every`` steps, unwrapped. After
 a start-up of ``skip`` steps (the disturbance flow around the particle develops over a few
