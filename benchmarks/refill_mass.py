@@ -51,7 +51,13 @@ from _common import set_threads  # noqa: E402
 DEFAULT_CASES = ["cube8_c50_re9.4", "cyl8x16_c30_re9.4"]
 REFILLS = ["equilibrium", "extrapolated"]
 REMAP = "particles: motion + remap (cover/uncover)"
-METHOD_NAMES = ["paper", "accurate"]
+#: single options of the accurate method on the paper's (to find which one moves the mass)
+OPTIONS = {"cli": {"particle_boundary": "cli"}, "galilean": {"momentum_exchange": "galilean"},
+           "lubrication": {"lubrication": {"enabled": True}},
+           "trt": {"collision": "trt", "trt_magic": 0.25}, "bouzidi_wall": {"wall": "bouzidi"},
+           # the accurate method without the Galilean exchange and lubrication
+           "cli_trt_bouzidi": {"particle_boundary": "cli", "collision": "trt", "trt_magic": 0.1875, "wall": "bouzidi"}}
+METHOD_NAMES = ["paper", "accurate", "accurate_fluid", *OPTIONS]
 
 
 def scene(level: str, case: str, seed: int, refill: str, method: str = "paper"):
@@ -65,7 +71,8 @@ def scene(level: str, case: str, seed: int, refill: str, method: str = "paper"):
         raise SystemExit(f"no committed scene {path.relative_to(ROOT)}: pick a case of the {level} level "
                          f"that has particles and a seed{seed} run")
     data = load_scene(path).model_dump(mode="json", exclude_unset=True)
-    data["numerics"] = {**data.get("numerics", {}), **METHODS[method], "refill": refill}
+    extra = METHODS[method] if method in METHODS else OPTIONS[method]
+    data["numerics"] = {**data.get("numerics", {}), **extra, "refill": refill}
     data["name"] = f"{data['name']}_{method}_{refill}"
     return Scene.model_validate(data)
 
@@ -153,7 +160,8 @@ def main(argv=None) -> int:
     ap.add_argument("--seed", type=int, default=1, help="packing seed of the committed run")
     ap.add_argument("--level", default="credible", help="the level whose committed scenes are read")
     ap.add_argument("--methods", nargs="+", default=["paper"], choices=METHOD_NAMES,
-                    help="paper: the committed scene; accurate: with cases.METHODS['accurate']")
+                    help="paper: the committed scene; accurate (accurate_fluid): with cases.METHODS['accurate'] "
+                    "(['accurate_fluid']); cli, galilean, lubrication: that option alone on the paper's method")
     ap.add_argument("--refills", nargs="+", default=REFILLS, choices=REFILLS)
     ap.add_argument("--steps", type=int, default=600)
     ap.add_argument("--threads", type=int, default=1)
