@@ -7,7 +7,8 @@ the packings they name (``benchmarks/step.py`` does the same); by default ``cube
 (192 cubes at 50 %) and ``cyl8x16_c30_re9.4`` (56 cylinders at 30 %), seed 1. Each case runs
 ``--steps`` steps from the committed start (particles at rest in the parabolic flow) once per
 method (``--methods``: ``paper``, the committed scene; ``accurate``, with the numerics of
-``lbmpipe.reproduction.cases.METHODS["accurate"]``) and refill (``numerics.refill``):
+``lbmpipe.reproduction.cases.METHODS["accurate"]``; ``accurate_fluid`` likewise; ``OPTIONS``: one
+option of them on the paper's method, to find which moves the mass) and refill (``numerics.refill``):
 ``equilibrium`` (the paper's) and ``extrapolated`` (Grad's reconstruction with the neighbours'
 non-equilibrium stress).
 
