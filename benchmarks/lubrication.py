@@ -19,6 +19,9 @@ same run) adds its own force, which the sphere's held velocity keeps out of the 
 The box is finite: its walls and periodic images add drag (a Stokeslet's images); ``--box`` and
 ``--height`` set it, and the rows above the cutoff show what it adds where lubrication is off.
 
+``--particle-boundary`` and ``--trt-magic`` (TRT instead of BGK) run another particle surface (the
+accurate method's: ``--particle-boundary cli --trt-magic 0.1875``).
+
 Run (the README's table): ``PYTHONPATH=. python benchmarks/lubrication.py``; the test
 (``tests/test_lubrication.py``) runs a smaller box through ``mean_approach_force``. With
 ``--cost [CASE ...]`` it times the effect on committed credible runs of the paper's pipe instead.
