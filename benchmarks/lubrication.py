@@ -19,6 +19,9 @@ same run) adds its own force, which the sphere's held velocity keeps out of the 
 The box is finite: its walls and periodic images add drag (a Stokeslet's images); ``--box`` and
 ``--height`` set it, and the rows above the cutoff show what it adds where lubrication is off.
 
+``--particle-boundary`` and ``--trt-magic`` (TRT instead of BGK) run another particle surface (the
+accurate method's: ``--particle-boundary cli --trt-magic 0.1875``).
+
 Run (the README's table): ``PYTHONPATH=. python benchmarks/lubrication.py``; the test
 (``tests/test_lubrication.py``) runs a smaller box through ``mean_approach_force``. With
 ``--cost [CASE ...]`` it times the effect on committed credible runs of the paper's pipe instead.
@@ -58,15 +61,17 @@ class HoldVelocity(Effect):
 
 
 def approach_scene(a: float, gap: float, box: int, height: int, U: float, tau: float, cutoff: float | None,
-                   offset=(0.0, 0.0)) -> Scene:
+                   offset=(0.0, 0.0), numerics: dict | None = None) -> Scene:
     """The scene of one gap: dx = 1 mm, dt = 1 ms, so lattice and SI numbers coincide up to 10^-3
-    (lengths in mm, speeds in m/s per lattice unit, viscosity nu_lu 1e-3 m^2/s)."""
+    (lengths in mm, speeds in m/s per lattice unit, viscosity nu_lu 1e-3 m^2/s). ``numerics``: more
+    scene numerics (e.g. ``particle_boundary: cli``, ``collision: trt``, ``trt_magic``)."""
     nu_lu = (tau - 0.5) / 3.0
     return Scene.model_validate({
         "name": "sphere_approaching_wall",
         "domain": {"kind": "box", "size_mm": [float(box), float(box), float(height)], "walls": {"z": "wall"}},
         "fluid": {"viscosity_m2_s": nu_lu * 1e-3},
-        "numerics": {"lubrication": {"enabled": True} | ({} if cutoff is None else {"cutoff_dx": cutoff})},
+        "numerics": {**(numerics or {}),
+                     "lubrication": {"enabled": True} | ({} if cutoff is None else {"cutoff_dx": cutoff})},
         "run": {"duration_s": 10.0, "spinup_s": 1.0, "sample_interval_s": 1.0},
         "outputs": {"profile": False, "flow_rate": False},
         "particles": {"bodies": [{"shape": "sphere", "diameter_mm": 2.0 * a,
@@ -77,13 +82,14 @@ def approach_scene(a: float, gap: float, box: int, height: int, U: float, tau: f
 
 
 def approach_force(a: float, gap: float, box: int, height: int, U: float = 1e-3, tau: float = 1.0,
-                   cutoff: float | None = None, tol: float = 1e-4, max_steps: int = 20000, offset=(0.0, 0.0)) -> dict:
+                   cutoff: float | None = None, tol: float = 1e-4, max_steps: int = 20000, offset=(0.0, 0.0),
+                   numerics: dict | None = None) -> dict:
     """Steady drag factors of the held sphere at ``gap`` (lattice spacings), its centre moved by
     ``offset`` (x, y) from the box's middle: ``without`` (the coupling's force alone) and ``with``
     (plus the lubrication effect's), and Brenner's. Steady: at least 8 decay times of the box's
     slowest mode, ``1 / (nu ((2 pi / box)^2 + (pi / height)^2))``, then until the force changes by
     less than ``tol`` (relative) over 400 steps."""
-    scene = approach_scene(a, gap, box, height, U, tau, cutoff, offset)
+    scene = approach_scene(a, gap, box, height, U, tau, cutoff, offset, numerics)
     params = derive(scene)
     sim = simulation_from_scene(scene, params, guard=False)
     system = sim.particles
@@ -194,6 +200,10 @@ def main() -> None:
     ap.add_argument("--cutoff", type=float, default=Lubrication().cutoff_dx, help="numerics.lubrication.cutoff_dx")
     ap.add_argument("--speed", type=float, default=1e-3, help="approach speed, lattice units")
     ap.add_argument("--tol", type=float, default=1e-4)
+    ap.add_argument("--particle-boundary", default="bounce_back", choices=["bounce_back", "bouzidi", "cli"],
+                    help="numerics.particle_boundary")
+    ap.add_argument("--trt-magic", type=float, default=None,
+                    help="run TRT with this magic parameter (e.g. 0.1875 for CLI's exact closure); default BGK")
     ap.add_argument("--cost", nargs="*", default=None, metavar="CASE",
                     help=f"time the effect on committed credible runs instead (default {' '.join(COST_CASES)})")
     args = ap.parse_args()
@@ -201,15 +211,18 @@ def main() -> None:
         cost(args.cost or COST_CASES)
         return
     offsets = lateral_offsets(args.offsets)
+    numerics = {"particle_boundary": args.particle_boundary}
+    if args.trt_magic is not None:
+        numerics.update(collision="trt", trt_magic=args.trt_magic)
     print(f"sphere a = {args.radius:g}, box {args.box} x {args.box} x {args.height} (walls at z = 0 and "
           f"{args.height}), tau = {args.tau:g}, U = {args.speed:g}, cutoff {args.cutoff:g}, "
-          f"{args.offsets} lateral offsets per gap")
+          f"{args.offsets} lateral offsets per gap, numerics {numerics}")
     print("| gap h (dx) | h/a | Brenner | without | err | spread | with lubrication | err | steps |")
     print("| --- | --- | --- | --- | --- | --- | --- | --- | --- |")
     for h in args.gaps:
         t0 = time.perf_counter()
         r = mean_approach_force(args.radius, h, args.box, args.height, offsets, U=args.speed, tau=args.tau,
-                                cutoff=args.cutoff, tol=args.tol)
+                                cutoff=args.cutoff, tol=args.tol, numerics=numerics)
         b = r["brenner"]
         print(f"| {h:g} | {h / args.radius:.4f} | {b:.3f} | {r['without']:.3f} | {100 * (r['without'] / b - 1):+.1f} % | "
               f"{r['spread']:.3f} | {r['with']:.3f} | {100 * (r['with'] / b - 1):+.1f} % | {r['steps']} "

@@ -1,8 +1,8 @@
 """What the accurate method costs per step against the paper's, on the production scenes.
 
 Builds each case's scene at the paper-method level (``credible``: BGK, half-way bounce-back) and at
-the accurate one (``credible_accurate``: TRT with magic 1/4 and the Bouzidi pipe wall; see
-``lbmpipe.reproduction.cases.METHODS``) from the same committed packing (seed 1), exactly as a run
+the accurate one (``credible_accurate``: its method ``accurate_fluid``, TRT with magic 1/4 and the
+Bouzidi pipe wall; see ``lbmpipe.reproduction.cases.METHODS``) from the same committed packing (seed 1), exactly as a run
 builds it (``lbmpipe.assemble.simulation_from_scene``). After ``--warmup`` steps each repetition
 times ``--steps`` steps of every contender in turn, the order rotating each round, so a drift of
 the shared machine's load falls on all alike. Prints the median ms/step of each method, the

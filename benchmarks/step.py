@@ -11,8 +11,10 @@ flow-rate driving at Re 26 (tau 0.963), collisions on, starting at rest in the p
 Each case is built with both methods:
   * ``paper``: the scene as committed (D3Q15 BGK, half-way bounce-back wall);
   * ``accurate``: the same scene with the numerics of ``lbmpipe.reproduction.cases.METHODS
-    ["accurate"]`` (TRT with magic 1/4, Bouzidi pipe wall; the particles keep the Ladd coupling),
-    exactly what the ``credible_accurate`` level writes into its scenes.
+    ["accurate"]`` (TRT with magic 3/16, Bouzidi pipe wall, CLI particle surfaces, Galilean momentum
+    exchange, lubrication on); ``accurate_fluid``: ``METHODS["accurate_fluid"]`` (TRT with magic 1/4,
+    Bouzidi pipe wall, the Ladd coupling), exactly what the ``credible_accurate`` level writes into
+    its scenes.
 The yardstick is the **particle-free pipe** of each method: the same scene with ``particles``
 removed (the committed ``flow_re26`` run's numerics), built in the same process.
 
@@ -45,8 +47,8 @@ with numba's cache warm; a cold compile adds about 2.5 minutes to the warm-up):
     python benchmarks/step.py [--cases cyl8x8_c30_re26 cube8_c50_re26 cube16_c30_re26] [--seed 1]
         [--level credible] [--methods paper accurate] [--steps 100] [--warmup 100] [--repeats 5]
         [--threads 1] [--json FILE]
-(``--methods`` also takes issue 44's particle-surface options on the paper's method: ``bouzidi``,
-``cli``, ``galilean``, ``cli_galilean``.)
+(``--methods`` also takes issue 44's particle options on the paper's method: ``bouzidi``, ``cli``,
+``galilean``, ``cli_galilean``, ``extrapolated`` (refill), ``lubrication``.)
 """
 
 from __future__ import annotations
@@ -79,7 +81,8 @@ FREE = "particle-free"
 #: particle-free pipe is the paper's, and ``/ paper`` is their whole step over the paper method's
 OPTION_METHODS = {"bouzidi": {"particle_boundary": "bouzidi"}, "cli": {"particle_boundary": "cli"},
                   "galilean": {"momentum_exchange": "galilean"},
-                  "cli_galilean": {"particle_boundary": "cli", "momentum_exchange": "galilean"}}
+                  "cli_galilean": {"particle_boundary": "cli", "momentum_exchange": "galilean"},
+                  "extrapolated": {"refill": "extrapolated"}, "lubrication": {"lubrication": {"enabled": True}}}
 
 
 def scenes(level: str, case: str, seed: int, method: str):
@@ -147,7 +150,7 @@ def main(argv=None) -> int:
     ap.add_argument("--seed", type=int, default=1, help="packing seed of the committed run")
     ap.add_argument("--level", default="credible", help="the level whose committed scenes are read")
     ap.add_argument("--methods", nargs="+", default=["paper", "accurate"],
-                    choices=["paper", "accurate", *OPTION_METHODS])
+                    choices=["paper", "accurate", "accurate_fluid", *OPTION_METHODS])
     ap.add_argument("--steps", type=int, default=100, help="timed steps per repetition")
     ap.add_argument("--warmup", type=int, default=100, help="untimed steps first (compile; particles moving)")
     ap.add_argument("--repeats", type=int, default=5, help="rounds (medians over them)")
@@ -233,7 +236,7 @@ def main(argv=None) -> int:
                        target_step_over_sweep=TARGET_STEP_OVER_SWEEP.get(case.split("_re")[0]),
                        other_cores=[x["other_cores"] for x in s],
                        finite=bool(np.isfinite(sims[k].particles.bodies.v).all() and np.isfinite(sims[k].f).all()))
-            if m == "accurate" and (case, "paper") in samples:
+            if m in ("accurate", "accurate_fluid") and (case, "paper") in samples:
                 row["accurate_over_paper"] = med([a["step_ms"] / p["step_ms"]
                                                   for a, p in zip(s, samples[(case, "paper")])])
                 row["target_accurate_over_paper"] = TARGET_ACCURATE_OVER_PAPER

@@ -268,6 +268,9 @@ def test_the_document_of_an_accurate_method_level_builds_and_names_the_level_it_
     text = out.read_text()
     paper_level = config["fidelities"]["credible_accurate"]["compare_with"]
     assert "## What the method changes" in text and f"`results/{paper_level}/method/`" in text
+    # the numerics its method changes, read from the config (METHODS), not a fixed sentence
+    method = config["fidelities"]["credible_accurate"]["method"]
+    assert f"the method `{method}`" in text and "wall: bouzidi" in text
     assert "### The paired runs of the method comparison" not in text
     assert equations.check_links(out, REPO) == []
 

@@ -1,5 +1,6 @@
 """The method dimension: the paper's BGK with half-way bounce-back against TRT (magic 1/4) with the
-Bouzidi pipe wall, on the same lattice and packings, compared run by run and claim by claim."""
+Bouzidi pipe wall (``accurate_fluid``, the committed ``credible_accurate``) or with issue 44's particle
+options too (``accurate``), on the same lattice and packings, compared run by run and claim by claim."""
 
 import copy
 import json
@@ -31,6 +32,44 @@ def test_accurate_level_changes_only_collision_and_wall_on_the_same_packing():
     # magic 1/4: (tau+ - 1/2)(tau- - 1/2) = 1/4
     tau_minus = 1.0 / a_params.omega_minus
     assert (a_params.tau - 0.5) * (tau_minus - 0.5) == pytest.approx(0.25)
+
+
+def test_accurate_method_uses_the_interpolated_particle_surface_galilean_exchange_and_lubrication():
+    num = cases.fidelity_numerics({"dx_mm": 1.0, "method": "accurate"}, 9.4)
+    assert num["particle_boundary"] == "cli" and num["momentum_exchange"] == "galilean"
+    assert num["lubrication"] == {"enabled": True}
+    assert num["collision"] == "trt" and num["trt_magic"] == pytest.approx(3 / 16) and num["wall"] == "bouzidi"
+    assert num.get("refill", "equilibrium") == "equilibrium"  # the extrapolated refill measured no gain
+    # a level's own numerics still win over its method's, and the scene validates
+    over = cases.fidelity_numerics({"dx_mm": 1.0, "method": "accurate", "numerics": {"trt_magic": 0.25}}, 9.4)
+    assert over["trt_magic"] == 0.25
+    name, case = cases.run_case(CONFIG, "cyl8x16_c30_re9.4/seed1")
+    acc = cases.case_scene(name, case, "x", {**CONFIG["fidelities"]["credible"], "method": "accurate"})
+    sc = Scene.model_validate(acc)
+    assert sc.numerics.particle_boundary == "cli" and sc.numerics.lubrication.enabled
+
+
+def test_method_comparison_reports_the_numerics_the_compared_level_changes():
+    changed = cases.method_numerics(CONFIG, "credible_accurate", against="credible")
+    assert changed == {"collision": "trt", "trt_magic": 0.25, "wall": "bouzidi"}
+    cfg = copy.deepcopy(CONFIG)
+    cfg["fidelities"]["credible_accurate"]["method"] = "accurate"
+    text = cases.numerics_text(cases.method_numerics(cfg, "credible_accurate", against="credible"))
+    assert "particle_boundary: cli" in text and "momentum_exchange: galilean" in text
+    assert "lubrication.enabled: true" in text and "trt_magic: 0.1875" in text
+    assert cases.numerics_text({}) == "the scene's defaults"
+
+
+@pytest.mark.parametrize("run", ["cyl8x16_c30_re9.4/seed1", "cube8_c50_re9.4/seed1", "flow_re26"])
+def test_committed_credible_accurate_scenes_are_rebuilt_byte_for_byte(run, tmp_path):
+    # the level ran with the method now called accurate_fluid: the workflow's path
+    # (write_case_scene, the packing referenced relative to the scene) writes the committed file again
+    committed = ROOT / "results" / "credible_accurate" / "cases" / run / "scene.yaml"
+    pid = cases.packing_id(cases.run_case(CONFIG, run)[1])
+    out = tmp_path / "results" / "credible_accurate" / "cases" / run / "scene.yaml"
+    cases.write_case_scene(CONFIG, "credible_accurate", run, out,
+                           packing_csv=tmp_path / "results" / "packings" / f"{pid}.csv" if pid else None)
+    assert out.read_bytes() == committed.read_bytes()
 
 
 def test_paper_method_level_scenes_are_unchanged_by_the_method_dimension():
@@ -146,6 +185,8 @@ def test_comparison_writes_its_tables_even_before_any_accurate_run(tmp_path):
         tmp_path / "base" / "claims.csv", index=False)
     s = methods.write(_config(), "base", tmp_path, tmp_path / "base" / "method")
     assert s["accurate_level"] == "acc" and s["accurate_runs_planned"] == 2 and s["pairs"] == 0
+    # the record names the method and the numerics it changes against the paper level
+    assert s["accurate_method"] == "accurate" and s["accurate_numerics"]["particle_boundary"] == "cli"
     assert (tmp_path / "base" / "method" / "runs.csv").exists() and (tmp_path / "base" / "method" / "claims.csv").exists()
     assert (tmp_path / "base" / "method" / "method_comparison.png").stat().st_size > 0
 

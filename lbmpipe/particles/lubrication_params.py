@@ -23,7 +23,8 @@ class Lubrication(BaseModel):
         0.8, gt=0, le=4,
         description="Gap (lattice spacings) below which the correction acts; it is zero above and continuous at it. About "
         "one spacing, where the gap has no fluid node left; 0.8 fits Brenner's force on a sphere approaching a wall "
-        "best with Ladd's bounce-back at tau 1 (benchmarks/README.md, issue 44: lubrication).")
+        "best with Ladd's bounce-back (BGK) and with CLI (TRT, magic 3/16) at tau 1, one value for both boundaries "
+        "(benchmarks/README.md, issue 44: lubrication).")
     min_gap_dx: float = Field(
         0.01, gt=0,
         description="Gap (lattice spacings) below which the force stops growing (saturates): surfaces this close count as "

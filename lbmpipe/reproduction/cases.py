@@ -33,12 +33,55 @@ from ..units import derive
 from .pipe import DT_PER_MM_S, FLOWS, PIPE, pipe_scene, time_step
 
 
-#: The numerical methods a level can run (its ``method`` key). ``paper``: BGK, Eq. (2), with half-way
-#: bounce-back at the pipe wall, as the paper; the wall then sits at a place that depends on tau (1.78
-#: at Re 9.4). ``accurate``: TRT with the magic parameter 1/4 (the bounce-back wall's place independent
-#: of tau) and the Bouzidi interpolated pipe wall. In both the particles keep the paper's Ladd
-#: bounce-back coupling, Eqs. (9)-(12): an interpolated moving surface is not the paper's model.
-METHODS = {"paper": {}, "accurate": {"collision": "trt", "trt_magic": 0.25, "wall": "bouzidi"}}
+#: The numerical methods a level can run (its ``method`` key; ``numerics`` of the scene, merged under
+#: the level's own ``numerics``).
+#:
+#: - ``paper``: BGK, Eq. (2), with half-way bounce-back at the pipe wall and Ladd's coupling at the
+#:   particles, Eqs. (8)-(12), as the paper (the scene's defaults); the wall then sits at a place that
+#:   depends on tau (1.78 at Re 9.4).
+#: - ``accurate_fluid``: TRT with the magic parameter 1/4 and the Bouzidi interpolated pipe wall, the
+#:   paper's particle side (Ladd's bounce-back, momentum exchange, equilibrium refill). The level
+#:   ``credible_accurate`` ran with it (it was ``accurate`` before issue 44).
+#: - ``accurate``: the best particle options of issue 44 with TRT and the Bouzidi pipe wall
+#:   (benchmarks/README.md, "Issue 44"): the CLI particle surface (within 0.9 % of Zick & Homsy and
+#:   0.5 % of the rotating sphere's torque at tau 1 and 1.78), Galilean-invariant momentum exchange
+#:   (17-33 times less force jitter when nodes are covered or uncovered), lubrication on (the
+#:   Brenner check), TRT magic 3/16 (CLI's exact closure; the Bouzidi pipe wall is as good with it as
+#:   with 1/4: ``benchmarks/trt_magic.py``). The refill stays the equilibrium one: the extrapolated
+#:   refill did not reduce the mass the correction puts back and costs more.
+METHODS = {
+    "paper": {},
+    "accurate_fluid": {"collision": "trt", "trt_magic": 0.25, "wall": "bouzidi"},
+    "accurate": {"collision": "trt", "trt_magic": 0.1875, "wall": "bouzidi", "particle_boundary": "cli",
+                 "momentum_exchange": "galilean", "lubrication": {"enabled": True}},
+}
+
+
+def method_numerics(config: dict, level: str, against: str | None = None) -> dict:
+    """The scene ``numerics`` a level's method sets (:data:`METHODS` under the level's own
+    ``numerics``), without the lattice (dx, dt); with ``against``, only the entries that differ from
+    that level's (what the method comparison changes)."""
+    def own(name):
+        fid = config["fidelities"][name]
+        return {k: v for k, v in {**METHODS[fid.get("method", "paper")], **fid.get("numerics", {})}.items()
+                if k not in ("dx_mm", "dt_s")}
+    mine = own(level)
+    if against is None:
+        return mine
+    base = own(against)
+    return {k: v for k, v in mine.items() if base.get(k) != v}
+
+
+def numerics_text(numerics: dict) -> str:
+    """``numerics`` as one line for a document: ``collision: trt, wall: bouzidi, lubrication.enabled:
+    true`` (nested models flattened with dots); ``the scene's defaults`` if empty."""
+    def flat(d, pre=""):
+        for k, v in d.items():
+            if isinstance(v, dict):
+                yield from flat(v, f"{pre}{k}.")
+            else:
+                yield f"{pre}{k}: {str(v).lower() if isinstance(v, bool) else v}"
+    return ", ".join(flat(numerics)) or "the scene's defaults"
 
 
 def fidelity_numerics(fidelity: dict, reynolds: float | None = None) -> dict:

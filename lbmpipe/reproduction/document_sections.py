@@ -16,7 +16,7 @@ import pandas as pd
 from ..scene import Scene, SceneError
 from ..units import derive
 from . import figures, health
-from .cases import FLOWS, case_scene, level_runs
+from .cases import FLOWS, case_scene, level_runs, method_numerics, numerics_text
 from .convergence import levels
 from .equations import EQUATION_GROUPS, EQUATIONS, N_EQUATIONS, equation_index, equation_link, relative_href
 from .health import _num, read_json  # _num: a null (an error not measured) as NaN
@@ -321,7 +321,9 @@ def method_comparison_section(fid_dir: Path, fidelity: str, config: dict, out_di
     fid = (config.get("fidelities") or {}).get(fidelity) or {}
     if fid.get("compare_with"):
         # the paired runs are shown in the compared level's document
-        return {"is_accurate": True, "paper_level": fid["compare_with"], "runs": None}
+        return {"is_accurate": True, "paper_level": fid["compare_with"], "runs": None,
+                "method": fid.get("method", "paper"),
+                "numerics": numerics_text(method_numerics(config, fidelity, against=fid["compare_with"]))}
     other = comparison_level(config, fidelity)
     if other is None:
         return None
@@ -337,6 +339,8 @@ def method_comparison_section(fid_dir: Path, fidelity: str, config: dict, out_di
     png = mdir / "method_comparison.png"
     figure = relative_href(png, out_dir) if png.is_file() else None
     return {"is_accurate": False, "level": other, "planned": summ.get("accurate_runs_planned", 0), "done": done,
+            "method": config["fidelities"][other].get("method", "paper"),
+            "numerics": numerics_text(method_numerics(config, other, against=fidelity)),
             "figure": figure,
             "pairs": summ.get("pairs", 0), "omega_compared": summ.get("omega_compared", 0),
             "omega_significant": summ.get("omega_significant", 0),

@@ -1,8 +1,10 @@
-"""What the numerical method changes: the paper's method (BGK, half-way bounce-back) against the
-accurate one (TRT with magic 1/4, Bouzidi pipe wall; ``cases.METHODS``), run by run and claim by
-claim.
+"""What the numerical method changes: the paper's method (BGK, half-way bounce-back, Ladd's coupling)
+against a more accurate one (``cases.METHODS``: ``accurate_fluid``, TRT with magic 1/4 and the
+Bouzidi pipe wall, or ``accurate``, which adds issue 44's particle options), run by run and claim by
+claim. The numerics the compared level changes are read from the config (``cases.method_numerics``)
+and written into ``summary.json`` (``accurate_method``, ``accurate_numerics``).
 
-A level with ``method: accurate`` and ``compare_with: <level>`` runs a subset of the cases on the
+A level with ``method: accurate`` (or ``accurate_fluid``) and ``compare_with: <level>`` runs a subset of the cases on the
 same lattice, run lengths and packings as the paper-method level. Each of its runs is paired with
 the paper-method run of the same case and packing seed, so the packing's large effect on the mean
 spin (the seed-to-seed scatter of issue "steady results") cancels from the difference. Per pair and
@@ -25,7 +27,7 @@ from pathlib import Path
 import pandas as pd
 
 from ..outputs import write_json
-from .cases import level_cases, level_runs
+from .cases import level_cases, level_runs, method_numerics
 from .claims import evaluate_claims
 from .comparison_figures import method_comparison
 from .health import _num as _f
@@ -196,6 +198,8 @@ def write(config: dict, paper_level: str, root: Path, out_dir: Path) -> dict:
     method_comparison(runs, claims, out_dir / "method_comparison",
                       title=f"What the method changes: level {paper_level} (paper) against {acc or 'no accurate level'}")
     s = {"paper_level": paper_level, "accurate_level": acc,
+         "accurate_method": config["fidelities"][acc].get("method", "paper") if acc else None,
+         "accurate_numerics": method_numerics(config, acc, against=paper_level) if acc else {},
          "accurate_runs_planned": len(level_runs(config, acc)) if acc else 0, **summary(runs, claims)}
     write_json(out_dir / "summary.json", s)  # strict JSON: NaN as null
     return s
