@@ -75,13 +75,14 @@ def test_tables_say_unpackable_with_the_concentration_the_attempt_reached(tmp_pa
     assert set(osum.loc[osum["case"] == "cube24_c50_re9.4", "status"]) == {"unpackable"}
 
 
-def test_a_declaration_whose_attempt_packed_or_is_missing_is_a_config_error(tmp_path):
+def test_a_declaration_whose_attempt_packed_is_a_config_error_and_a_missing_one_is_named(tmp_path):
     config = _tiny_config(_attempt(tmp_path, status="packed", reached=0.5))
     problems = config_problems(config, SCHEMA)
     assert any("cases.cube24_c50_re9.4.unpackable.attempt" in p and "Fix: remove the declaration" in p
                for p in problems), problems
-    config = _tiny_config(tmp_path / "nowhere.json")
-    assert any("no packing record" in p for p in config_problems(config, SCHEMA))
+    config = _tiny_config(tmp_path / "nowhere.json")  # a working directory without the packings: allowed
+    assert config_problems(config, SCHEMA) == []
+    assert "nowhere.json not found" in U.record("cube24_c50_re9.4", config["cases"]["cube24_c50_re9.4"])["message"]
     bad = copy.deepcopy(config)
     del bad["cases"]["cube24_c50_re9.4"]["unpackable"]["reason"]
     assert any("reason" in p for p in config_problems(bad, SCHEMA))

@@ -396,7 +396,7 @@ def config_problems(config: dict, schema_path: str | Path, check=None) -> list[s
             if other is not None and other not in config["fidelities"]:
                 out.append(f"config error in fidelities.{fname}.{key}: {other!r} is not a level. "
                            f"Fix: one of {sorted(config['fidelities'])}")
-    out.extend(unpackable.problems(config))
+    out.extend(unpackable.problems(config, Path(schema_path).resolve().parents[2]))  # the repository
     if out:
         return out
     for cname, case in config["cases"].items():

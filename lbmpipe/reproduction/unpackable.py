@@ -61,8 +61,10 @@ def read_summary(case_dir: Path | str, case: dict | None = None, root: Path | st
 
 
 def problems(config: dict, root: Path | str = ".") -> list[str]:
-    """Config errors of the declarations: each needs a reason and an attempt whose committed record
-    says ``unpackable`` (one line per problem, ``config error in ...``)."""
+    """Config errors of the declarations (one line per problem, ``config error in ...``): a
+    particle-free case declared unpackable, or an attempt whose record (read relative to ``root``,
+    the repository) says the target packed. An absent record is no error: a working directory
+    of its own has no committed packings, and the record then says so."""
     out = []
     for name, case in (config.get("cases") or {}).items():
         dec = declared(case)
@@ -73,11 +75,7 @@ def problems(config: dict, root: Path | str = ".") -> list[str]:
             out.append(f"{where}: a particle-free case cannot be unpackable. Fix: remove the entry")
             continue
         att = _read(Path(root) / str(dec.get("attempt", "")))
-        if att is None:
-            out.append(f"{where}.attempt: no packing record at {dec.get('attempt')!r}. Fix: name the committed "
-                       "record of the failed attempt (results/packings/<id>.json, written by `snakemake "
-                       "results/packings/<id>.json`)")
-        elif att.get("status") != "unpackable":
+        if att is not None and att.get("status") != "unpackable":
             out.append(f"{where}.attempt: {dec.get('attempt')} says status {att.get('status')!r}, not "
                        "'unpackable'. Fix: remove the declaration: the case packs")
     return out
