@@ -103,3 +103,15 @@ def test_new_runs_all_plans_no_job_for_an_unpackable_case():
     assert wildcards  # the dry run lists its jobs
     hits = [w for w in wildcards if any(c in w for c in DECLARED) or "packing=cube24_c50" in w]
     assert hits == [], hits
+
+
+def test_the_committed_tables_and_document_of_the_default_level_say_unpackable():
+    level = ROOT / "results" / CONFIG["fidelity"]
+    for table in ("angular_velocity", "packing", "orientation_summary"):
+        df = pd.read_csv(level / "tables" / f"{table}.csv")
+        assert set(df.loc[df["case"].isin(DECLARED), "status"]) == {"unpackable"}, table
+    runs = pd.read_csv(level / "tables" / "runtime.csv")["case"].str.split("/").str[0]
+    assert not set(runs) & set(DECLARED)  # no run: nothing to time
+    doc = (ROOT / "paper" / f"reproduction_{CONFIG['fidelity']}.md").read_text()
+    rows = [ln for ln in doc.splitlines() if ln.startswith(tuple(f"| {c} |" for c in DECLARED))]
+    assert rows and all("| unpackable |" in ln for ln in rows) and not any("not run" in ln for ln in rows)
