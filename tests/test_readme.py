@@ -90,6 +90,8 @@ def _facts() -> dict[str, str]:
     facts["cylinder angles"] = (f"mean angles of {_g(angle.min(), 3)}-{_g(angle.max(), 3)} deg to the pipe axis "
                                 f"({_g(math.degrees(1.0), 3)} deg for random orientations")  # mean of sin-weighted angle: 1 rad
 
+    cube24 = ran[ran["case"].str.startswith("cube24_")]
+    assert len(cube24) and cube24["flags"].str.contains("locked").all()  # "24 mm cubes lock"
     sd = av[["seed_sd_x", "seed_sd_y", "seed_sd_z"]].to_numpy(float)
     need = [max(json.loads(p.read_text()).get("seeds_for_5pct", {}).values() or [0])
             for p in (LEVEL / "cases").glob("*/stats.json")]
