@@ -30,6 +30,7 @@ from ..particles.shapes import make_shape
 from ..scene import Scene, SceneError, load_scene
 from ..run import run_scene
 from ..units import derive
+from . import unpackable
 from .pipe import DT_PER_MM_S, FLOWS, PIPE, pipe_scene, time_step
 
 
@@ -210,10 +211,13 @@ def level_cases(config: dict, fidelity_name: str) -> list[str]:
 def level_runs(config: dict, fidelity_name: str) -> list[str]:
     """Every simulation run of a level: each particle-free case, and each particle case once per
     packing seed (``case/seed<k>``) in a level with ``seeds``, else once (``case``); only the
-    level's ``cases`` when it names them."""
+    level's ``cases`` when it names them. A case the config declares unpackable
+    (:mod:`lbmpipe.reproduction.unpackable`) has no run: nothing is planned for it."""
     fid = config["fidelities"][fidelity_name]
     runs = []
     for name in level_cases(config, fidelity_name):
+        if unpackable.declared(config["cases"][name]):
+            continue
         if config["cases"][name].get("particles") is None or "seeds" not in fid:
             runs.append(name)
         else:
@@ -436,6 +440,7 @@ def config_problems(config: dict, schema_path: str | Path, check=None) -> list[s
             if other is not None and other not in config["fidelities"]:
                 out.append(f"config error in fidelities.{fname}.{key}: {other!r} is not a level. "
                            f"Fix: one of {sorted(config['fidelities'])}")
+    out.extend(unpackable.problems(config, Path(schema_path).resolve().parents[2]))  # the repository
     if out:
         return out
     for cname, case in config["cases"].items():

@@ -15,6 +15,7 @@ import numpy as np
 import pandas as pd
 
 from . import health, pooling
+from .unpackable import read_summary
 
 AXES = ("x", "y", "z")
 #: the systematic error per observable (``config.yaml`` ``systematic``), zero until measured
@@ -160,7 +161,7 @@ class Inputs:
         return find_case(self.cases, shape, size, concentration, reynolds, collisions)
 
     def _status_reason(self, name: str, status: str) -> str:
-        s = health.read_json(self.fid_dir / "cases" / name / "summary.json") or {}
+        s = read_summary(self.fid_dir / "cases" / name, self.cases.get(name)) or {}
         if status == "unpackable":
             reached = (s.get("packing") or {}).get("concentration_reached")
             if reached is None:
@@ -230,7 +231,7 @@ class Inputs:
         if self._left_out(name):
             return None, self._left_out(name)
         path = self.fid_dir / "cases" / name / "profile.csv"
-        s = health.read_json(self.fid_dir / "cases" / name / "summary.json")
+        s = read_summary(self.fid_dir / "cases" / name, self.cases.get(name))
         if s is not None and s.get("status") != "completed":
             return None, self._status_reason(name, str(s.get("status")))
         try:

@@ -6,7 +6,6 @@ section whose input is absent says ``not built at this level: <file> missing``."
 
 from __future__ import annotations
 
-import json
 import math
 import re
 from pathlib import Path
@@ -23,6 +22,7 @@ from .health import _num, read_json  # _num: a null (an error not measured) as N
 from .methods import comparison_level
 from .runcost import UNRECORDED
 from .steady import steady_corrected
+from .unpackable import read_summary
 
 
 #: The paper's figure captions, from its text (the OCR of the paper; Fig. 7 has no caption there).
@@ -199,11 +199,10 @@ def case_rows(config: dict, fid_dir: Path) -> list[dict]:
         p = case.get("particles") or {}
         size = (f"{fmt(p['diameter_mm'])} × {fmt(p['length_mm'])}" if p.get("shape") == "cylinder"
                 else fmt(p["edge_mm"]) if p.get("shape") == "cube" else "–")
-        summary_path = Path(fid_dir) / "cases" / name / "summary.json"
+        s = read_summary(Path(fid_dir) / "cases" / name, case)  # a case declared unpackable: its record
         status = "not run"
         achieved = pk.get(name, {}).get("concentration_achieved")
-        if summary_path.is_file():
-            s = json.loads(summary_path.read_text())
+        if s is not None:
             status = s.get("status", "?")
             if achieved is None:
                 achieved = (s.get("particles") or {}).get("concentration_achieved")
@@ -406,7 +405,7 @@ def health_section(fid_dir: Path, config: dict) -> dict:
     rows, stale = [], []
     for name in config.get("cases") or {}:
         cdir = Path(fid_dir) / "cases" / name
-        r = health.health_row(name, cdir, diag["health"])
+        r = health.health_row(name, cdir, diag["health"], config["cases"][name])
         stats = health.read_json(cdir / "stats.json")
         if stats is not None and not health.health_is_computed(stats):
             stale.append(name)

@@ -47,6 +47,8 @@ import numpy as np
 import pandas as pd
 import yaml
 
+from .unpackable import read_summary
+
 _NAN = float("nan")
 CONFIG_PATH = Path(__file__).resolve().parents[2] / "config.yaml"
 HEALTH_COLUMNS = ["case", "status", "mass_floor_rel", "mass_drift_rel", "mass_corrected_rel",
@@ -215,9 +217,10 @@ def _fmt_bool(d, key: str):
     return "" if not isinstance(d, dict) or key not in d else bool(d[key])
 
 
-def health_row(case: str, case_dir: Path, limits: dict) -> dict:
+def health_row(case: str, case_dir: Path, limits: dict, case_cfg: dict | None = None) -> dict:
     """One row of ``tables/run_health.csv``: the run health of the case, its diagnostics from
-    ``stats.json`` when written (empty when not computed) and its flags."""
+    ``stats.json`` when written (empty when not computed) and its flags (``case_cfg``: its config
+    entry, which may declare it unpackable)."""
     case_dir = Path(case_dir)
     stats = read_json(case_dir / "stats.json") or {}
     if isinstance(stats.get("seeds"), list) and isinstance(stats.get("health"), dict):
@@ -226,7 +229,7 @@ def health_row(case: str, case_dir: Path, limits: dict) -> dict:
         h.update(status=combined_status(stats, read_json(case_dir / "summary.json")),
                  issues=list(stats["health"].get("issues") or []))
     else:
-        h = run_health(read_json(case_dir / "summary.json"), read_flow_rate(case_dir), limits)
+        h = run_health(read_summary(case_dir, case_cfg), read_flow_rate(case_dir), limits)
     flags = [f for f in case_flags(stats) if f != "unhealthy"] + (["unhealthy"] if h["issues"] else [])
     spin = stats.get("spinup") if isinstance(stats.get("spinup"), dict) else {}
     return {"case": case, **{k: h[k] for k in HEALTH_COLUMNS[1:HEALTH_COLUMNS.index("frozen")]},

@@ -28,6 +28,8 @@ import pandas as pd
 
 from . import health
 from .robustness import robustness_section
+
+from .unpackable import read_summary
 from .document_sections import (DECISIONS, PAPER_CAPTIONS, case_rows, convergence_section, figure_entries, fmt,
                                 health_section, method_comparison_section, method_section, our_caption,
                                 parameter_rows, read_table, runtime_section, stationarity_section, study_section,
@@ -75,7 +77,7 @@ def _case_dirs(fid_dir: Path, config: dict) -> dict[str, dict]:
     out = {}
     for name in config.get("cases") or {}:
         cdir = Path(fid_dir) / "cases" / name
-        out[name] = {"summary": health.read_json(cdir / "summary.json"), "stats": health.read_json(cdir / "stats.json")}
+        out[name] = {"summary": read_summary(cdir, config["cases"][name]), "stats": health.read_json(cdir / "stats.json")}
     return out
 
 

@@ -4,7 +4,6 @@ document (:func:`snapshot_gallery`)."""
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import numpy as np
@@ -14,6 +13,7 @@ from . import statistics as st
 from .steady import rotation_matrices
 from .figures import CUBE_MAX_AXIS_ANGLE_DEG, status_text
 from .plotting import plt
+from .unpackable import declared, read_summary
 
 
 def _cylinder_faces(d: float, length: float, n: int = 16) -> list[np.ndarray]:
@@ -41,13 +41,13 @@ def _cube_faces(edge: float) -> list[np.ndarray]:
     return [np.array(faces)]  # (6, 4, 3)
 
 
-def snapshot(case_dir: Path, stem: Path, title: str = "") -> Path:
+def snapshot(case_dir: Path, stem: Path, title: str = "", case: dict | None = None) -> Path:
     """Fig. 3-like view: the particles of the last sample in 3-D inside the pipe outline, each
     drawn as a polygon mesh in its position and orientation, coloured by its angle to the pipe
     axis. Writes ``stem``.png only and returns it. A case without particles to draw (not run,
-    not packable) gets a PNG saying so."""
+    not packable, ``case`` its config entry: one declared unpackable) gets a PNG saying so."""
     stem = Path(stem)
-    fig = snapshot_figure(case_dir, title)
+    fig = snapshot_figure(case_dir, title, case)
     out = stem.parent / f"{stem.name}.png"
     out.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(out, dpi=150, bbox_inches="tight")
@@ -55,7 +55,7 @@ def snapshot(case_dir: Path, stem: Path, title: str = "") -> Path:
     return out
 
 
-def snapshot_figure(case_dir: Path, title: str = ""):
+def snapshot_figure(case_dir: Path, title: str = "", case: dict | None = None):
     """The figure of :func:`snapshot`, not saved: the 3-D axes first, the colour bar's (if any) second."""
     from mpl_toolkits.mplot3d.art3d import Poly3DCollection
 
@@ -71,12 +71,7 @@ def snapshot_figure(case_dir: Path, title: str = ""):
     for a in np.linspace(0, 2 * np.pi, 9)[:-1]:
         ax.plot([R * np.cos(a)] * 2, [R * np.sin(a)] * 2, [0.0, L], color="0.75", lw=0.5)
     pq, static = case_dir / "particles.parquet", case_dir / "particles_static.csv"
-    summary = {}
-    if (case_dir / "summary.json").exists():
-        try:
-            summary = json.loads((case_dir / "summary.json").read_text())
-        except ValueError:
-            pass
+    summary = read_summary(case_dir, case) or {}
     frame = case_dir / st.LAST_FRAME
     try:
         df = pd.read_csv(frame) if frame.exists() else pd.read_parquet(pq) if pq.exists() else pd.DataFrame()
@@ -160,10 +155,11 @@ def snapshots(fid_dir: Path, cases: dict, fidelity: str | None = None, run: str 
             continue
         label = f"{case}{', ' + run.replace('seed', 'seed ') if run else ''}, fidelity {fidelity}"
         case_dir, png = fid_dir / "cases" / case / run, fid_dir / "figures" / f"fig3_{case}.png"
-        if png.exists() and not any((case_dir / f).exists() for f in (st.LAST_FRAME, "particles.parquet")):
+        if png.exists() and not declared(cfg) and not any((case_dir / f).exists()
+                                                          for f in (st.LAST_FRAME, "particles.parquet")):
             out.append(png)  # drawn from a trajectory no longer here (not committed): kept, not blanked
             continue
-        out.append(snapshot(case_dir, png.with_suffix(""), title=label))
+        out.append(snapshot(case_dir, png.with_suffix(""), title=label, case=cfg))
     return out
 
 

@@ -47,6 +47,7 @@ from scipy import stats as _st
 
 from . import health as H
 from . import series as SR
+from . import unpackable as U
 from .health import _num
 from .angles import (CUBE_MAX_AXIS_ANGLE_DEG, ORIENTATION_KINDS, cube_axis_angle, cube_projected_angle,  # noqa: F401
                      cylinder_axis_angle, isotropic_bin_fractions, isotropic_cdf, orientation_angles)
@@ -222,7 +223,7 @@ def case_statistics(case: str, case_dir: Path, case_cfg: dict, spinup_s: float |
     case_dir = Path(case_dir)
     diag = H.thresholds(config)
     meta = case_metadata(case, case_cfg)
-    summary = H.read_json(case_dir / "summary.json")
+    summary = U.read_summary(case_dir, case_cfg)  # a case declared unpackable: its record
     status = summary.get("status", "unknown") if summary else "not run"
     s = summary or {}
     out = _base_stats(case, meta, status, s, float(spinup_s) if spinup_s is not None
@@ -464,7 +465,7 @@ def aggregate(fid_dir: Path, cases: dict) -> None:
         if meta["shape"] not in ORIENTATION_KINDS:
             continue
         cdir = fid_dir / "cases" / case
-        summary = H.read_json(cdir / "summary.json") or {}
+        summary = U.read_summary(cdir, cfg) or {}
         s = _case_stats(case, cdir, cfg)
         status = summary.get("status", s.get("status", "not run")) if summary else "not run"
         parts = summary.get("particles") or {}

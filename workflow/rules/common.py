@@ -19,7 +19,7 @@ from snakemake.io import ancient, expand
 
 from lbmpipe.reproduction import study_plan as lbm_study
 from lbmpipe.reproduction.cases import (case_scene, estimate_minutes, level_cases, level_runs, level_seeds, packing_id,
-                                        run_case, write_case_scene)
+                                        run_case, split_run, write_case_scene)
 from lbmpipe.reproduction.convergence import levels as convergence_levels
 from lbmpipe.reproduction.literate import study_level
 from lbmpipe.reproduction.methods import comparison_level
@@ -179,7 +179,8 @@ class Pipeline:
             def drawable(d):
                 return any(Path(d, f).exists() for f in ("last_frame.csv", "particles.parquet"))
 
-            ran = set(level_cases(self.config, wildcards.fidelity))  # a level may run a subset of the cases
+            # a level may run a subset of the cases; a case declared unpackable has no run to draw
+            ran = {split_run(r)[0] for r in level_runs(self.config, wildcards.fidelity)}
             return [f"{run_dir(c)}/{name}" for c in self.particle_cases
                     if c in ran and (self.new_runs == "all" or drawable(run_dir(c)))]
         return files
