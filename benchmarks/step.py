@@ -126,10 +126,13 @@ def group_of(name: str) -> str:
     return next((g for g, prefix in GROUPS if name.startswith(prefix)), "other")
 
 
-def timed(sim, steps: int, monitor: LoadMonitor) -> dict:
-    """One repetition: ``steps`` steps after two untimed ones; ms/step per effect and whole."""
+def timed(sim, steps: int, monitor: LoadMonitor, reset=None) -> dict:
+    """One repetition: ``steps`` steps after two untimed ones; ms/step per effect and whole.
+    ``reset`` (optional) is called after the untimed steps, just before the timed ones."""
     sim.step(2)  # caches back after the other contenders
     before = dict(sim.timers)
+    if reset is not None:
+        reset()
     monitor.start()
     t0 = time.perf_counter()
     sim.step(steps)

@@ -39,7 +39,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "benchmarks"))
 from _common import LoadMonitor, machine_info, set_threads  # noqa: E402
-from step import DEFAULT_CASES, build, scenes  # noqa: E402
+from step import DEFAULT_CASES, build, scenes, timed as step_timed  # noqa: E402
 
 PARTS: dict[str, float] = {}
 
@@ -106,18 +106,13 @@ def link_bytes(sim) -> dict:
 
 
 def timed(sim, steps, monitor):
-    sim.step(2)
-    before = dict(sim.timers)
-    PARTS.clear()
-    monitor.start()
-    t0 = time.perf_counter()
-    sim.step(steps)
-    wall = time.perf_counter() - t0
-    load = monitor.read()
-    eff = {k: 1e3 * (v - before[k]) / steps for k, v in sim.timers.items()}
+    """``step.timed`` with the parts' clocks cleared after its untimed steps: ms/step per effect, per
+    part and whole, and the other processes' cores."""
+    rep = step_timed(sim, steps, monitor, reset=PARTS.clear)
+    eff = dict(rep["effects"])
     eff.update({k: 1e3 * v / steps for k, v in PARTS.items()})
-    eff["whole step"] = 1e3 * wall / steps
-    return eff, load.get("foreign_cores")
+    eff["whole step"] = rep["step_ms"]
+    return eff, rep["other_cores"]
 
 
 def main(argv=None) -> int:
