@@ -62,6 +62,37 @@ def test_a_partly_run_control_names_its_missing_runs_and_keeps_the_claim_pending
     assert R.robust_column({1: "reproduced"}, rows)[1] == "pending: reference not (fully) run"
 
 
+def test_a_partly_run_control_without_the_claims_pair_is_pending_and_its_change_on_few_runs_is_not_a_change():
+    """One Ma/2 run present of many: a claim whose cases it does not hold yet cannot change (the
+    control's view lacks its inputs), and a verdict that differs on the runs present is pending."""
+    base = _claims({1: "reproduced", 2: "contradicted"})
+    on_present = _claims({1: "reproduced", 2: "contradicted"}, uncovered=(1,))  # claim 1's pair not run yet
+    control = _claims({1: "reproduced", 2: "reproduced"}, uncovered=(1,))
+    rows = R.control_rows(base, control, "Ma/2", "a", done=["x/seed1"], missing=["y/seed1", "z/seed1"],
+                          baseline_present=on_present)
+    assert list(rows["status"]) == ["partly run (no comparison on the runs present)",
+                                    "partly run (changes on the runs present)"]
+    assert list(rows["verdict"]) == ["", "reproduced"]
+    robust = R.robust_column({1: "reproduced", 2: "contradicted"}, rows)
+    assert robust == {1: "pending: Ma/2 not (fully) run", 2: "pending: Ma/2 not (fully) run"}
+
+
+def test_only_cases_with_every_packing_present_enter_a_partly_run_controls_comparison():
+    config = {"cases": {"a": {"particles": {}}, "b": {"particles": {}}, "flow": {}},
+              "fidelities": {"c": {"seeds": 2, "cases": ["a", "b", "flow"]}}}
+    assert R.cases_present(config, "c", ["a/seed1", "a/seed2", "b/seed1", "flow"]) == ["a", "flow"]
+
+
+def test_floor_share_counts_samples_at_each_runs_own_density_floor_and_a_missing_scene_is_an_error(tmp_path):
+    _run(tmp_path / "r03", floor_devs=(0.1, 0.5, 0.7, 0.7), floor=0.3)
+    _run(tmp_path / "none", floor_devs=(0.1, 0.5, 0.7, 0.7), floor=None)
+    assert R.run_health_figures(tmp_path / "r03")["floor_sample_share"] == pytest.approx(0.5)   # 0.7 = 1 - 0.3
+    assert R.run_health_figures(tmp_path / "none")["floor_sample_share"] == 0.0
+    (tmp_path / "r03" / "scene.yaml").unlink()
+    with pytest.raises(FileNotFoundError, match="density floor"):
+        R.run_health_figures(tmp_path / "r03")
+
+
 def test_systematic_term_is_the_largest_shift_per_observable_and_a_config_value_overrides_it():
     shifts = pd.DataFrame([
         {"control": "Ma/2", "case": "a", "observable": "omega", "key": "mean_abs_omega_x", "base": 1.0,
@@ -98,8 +129,9 @@ def test_reference_converges_when_the_two_finest_lattices_agree_within_5_percent
     assert "differ by" in figures
 
 
-def _run(d: Path, status="completed", floor_devs=(0.1, 0.5, 0.2, 0.6), mass_rel=0.2):
+def _run(d: Path, status="completed", floor_devs=(0.1, 0.5, 0.2, 0.6), mass_rel=0.2, floor: float | None = 0.5):
     d.mkdir(parents=True, exist_ok=True)
+    (d / "scene.yaml").write_text(yaml.safe_dump({"numerics": {"density_floor": floor}}))
     (d / "summary.json").write_text(json.dumps({
         "status": status, "steps": 1000, "mass_correction": {"mass_added_rel": mass_rel},
         "lattice": {"fluid_nodes": 1000.0, "flow_rate_lu": 10.0}}))
@@ -229,3 +261,26 @@ def test_a_control_identical_to_the_base_holds_every_claim_it_covers_with_zero_s
     sys_ = R.systematic_from_shifts(shifts)
     assert sys_["terms"] == {"omega_rel": 0.0, "angle_deg": 0.0, "fraction_abs": 0.0, "profile_rel_l2": 0.0}
     assert "over" in sys_["figures"]["omega_rel"]  # measured, with its figures
+
+
+def test_a_control_run_copied_in_asks_for_its_statistics_and_changes_the_robustness_rules_trigger(tmp_path,
+                                                                                                   monkeypatch):
+    """`snakemake -c2` must rebuild the robustness outputs when a control run appears: the rule's
+    inputs ask for the new run's statistics (built where missing) and its params (a rerun trigger)
+    list the runs present."""
+    sys.path.insert(0, str(ROOT / "workflow" / "rules"))
+    from common import Pipeline  # workflow/rules/common.py
+    config = _config()
+    lvl = R.control_levels(config, "credible")[0]
+    first, second = [r for r in level_runs(config, lvl) if "/seed" in r][:2]
+    monkeypatch.chdir(tmp_path)
+    pipe = Pipeline(config, "credible", "none", [], [], [])
+    wc = type("W", (), {"fidelity": "credible"})()
+    assert pipe.robustness_inputs(wc) == [] and pipe.robustness_present(wc) == ""
+    _run(tmp_path / "results" / lvl / "cases" / first)
+    inputs = [str(f) for f in pipe.robustness_inputs(wc)]
+    assert f"results/{lvl}/cases/{first}/stats.json" in inputs   # not there yet: the statistics rule builds it
+    before = pipe.robustness_present(wc)
+    assert before == f"{lvl}/{first}=completed"
+    _run(tmp_path / "results" / lvl / "cases" / second, status="unstable")
+    assert pipe.robustness_present(wc) == f"{before}; {lvl}/{second}=unstable"

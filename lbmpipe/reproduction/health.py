@@ -39,7 +39,6 @@ threshold) and ``not steady`` (the run ends before the required spin-up, or its 
 
 from __future__ import annotations
 
-import json
 import math
 from pathlib import Path
 
@@ -47,7 +46,7 @@ import numpy as np
 import pandas as pd
 import yaml
 
-from .unpackable import read_summary
+from .unpackable import read_json, read_summary
 
 _NAN = float("nan")
 CONFIG_PATH = Path(__file__).resolve().parents[2] / "config.yaml"
@@ -81,13 +80,6 @@ def _num(v) -> float:
         return _NAN if v is None else float(v)
     except (TypeError, ValueError):
         return _NAN
-
-
-def read_json(path: Path) -> dict | None:
-    try:
-        return json.loads(Path(path).read_text())
-    except (OSError, ValueError):
-        return None
 
 
 def read_flow_rate(case_dir: Path) -> pd.DataFrame | None:

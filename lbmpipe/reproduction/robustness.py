@@ -38,10 +38,11 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
+import yaml
 
 from ..cost import predict
 from ..outputs import write_json
-from ..scene import Scene
+from ..scene import Numerics, Scene
 from ..units import derive
 from .cases import case_scene, level_cases, level_runs, level_seeds, run_case, split_run, wall_model
 from .claim_rules import SYSTEMATIC_KEYS
@@ -64,9 +65,6 @@ SYSTEMATIC_OF = {"omega": "omega_rel", "angle": "angle_deg", "fraction": "fracti
 #: convergence check (issue 47 item 3): the two finest lattices agree within this, or within their
 #: combined interval, with intervals no wider than ``CONVERGED_MAX_CI``
 CONVERGED_REL, CONVERGED_MAX_CI = 0.05, 0.10
-#: the density floor of the runs (``numerics.density_floor``): a sample whose largest |rho - 1| reaches
-#: 1 - rho_min has a node at the floor
-FLOOR_RHO_MIN = 0.5
 
 
 def control_levels(config: dict, base: str) -> list[str]:
@@ -143,46 +141,69 @@ def _covered(row) -> bool:
 
 
 def control_rows(baseline: pd.DataFrame, control: pd.DataFrame, label: str, level: str, done: list[str],
-                 missing: list[str]) -> pd.DataFrame:
+                 missing: list[str], baseline_present: pd.DataFrame | None = None) -> pd.DataFrame:
     """Per claim, the control's verdict beside the baseline's on the same cases and its status
-    (module docstring). ``baseline``/``control``: claims tables of the two views."""
+    (module docstring). ``baseline``: the claims on every case the control plans (whether it covers
+    a claim); ``control`` and ``baseline_present``: on the control's cases whose runs are all
+    present (``baseline_present`` defaults to ``baseline``, a complete control). A partly run
+    control that compares no pair of the claim on its runs present is pending, never "changes"."""
     rows = []
     planned = len(done) + len(missing)
+    present = baseline if baseline_present is None else baseline_present
     for _, b in baseline.iterrows():
         k = int(b["claim"])
         c = control[control["claim"] == k].iloc[0]
+        bp = present[present["claim"] == k].iloc[0]
+        verdict, base_verdict = "", str(b["verdict"])
         if not _covered(b):
-            status, verdict = f"not covered by {label}", ""
+            status = f"not covered by {label}"
         elif not done:
-            status, verdict = "not run", ""
+            status = "not run"
+        elif not (_covered(bp) and _covered(c)):
+            status = "partly run (no comparison on the runs present)"
         else:
-            verdict = str(c["verdict"])
-            status = "holds" if verdict == str(b["verdict"]) else "changes"
+            verdict, base_verdict = str(c["verdict"]), str(bp["verdict"])
+            status = "holds" if verdict == base_verdict else "changes"
             if missing:
                 status = f"partly run ({status} on the runs present)"
-        rows.append({"claim": k, "control": label, "level": level, "verdict": verdict, "baseline": str(b["verdict"]),
+        rows.append({"claim": k, "control": label, "level": level, "verdict": verdict, "baseline": base_verdict,
                      "status": status, "runs_done": len(done), "runs_planned": planned,
                      "missing": "; ".join(missing)})
     return pd.DataFrame(rows, columns=CONTROL_COLUMNS)
 
 
+def cases_present(config: dict, level: str, done: list[str]) -> list[str]:
+    """The level's cases whose every run is present."""
+    runs = level_runs(config, level)
+    return [c for c in level_cases(config, level)
+            if all(r in done for r in runs if split_run(r)[0] == c) and any(split_run(r)[0] == c for r in runs)]
+
+
 def control_verdicts(config: dict, base: str, root: Path) -> pd.DataFrame:
-    """:func:`control_rows` for every control of ``base`` (empty without one)."""
+    """:func:`control_rows` for every control of ``base`` (empty without one): the baseline on all
+    the control's cases (coverage) and, beside the control, on its cases present."""
     frames = []
     for lvl in control_levels(config, base):
         cases = level_cases(config, lvl)
         seeds = level_seeds(config["fidelities"][lvl])
         done, missing = runs_done(config, lvl, root)
+        present = cases_present(config, lvl, done)
         with tempfile.TemporaryDirectory() as work:
             b = view_claims(config, base, cases, seeds, root, Path(work) / "base")
-            # a control with no run has no verdict to evaluate (its rows say "not run")
-            c = view_claims(config, lvl, cases, seeds, root, Path(work) / "control") if done else b
-        frames.append(control_rows(b, c, control_label(config, lvl), lvl, done, missing))
+            bp, c = b, b  # a control with no run has no verdict to evaluate (its rows say "not run")
+            if present:
+                bp = b if len(present) == len(cases) else view_claims(config, base, present, seeds, root,
+                                                                       Path(work) / "base_present")
+                c = view_claims(config, lvl, present, seeds, root, Path(work) / "control")
+            elif done:  # runs present, no case complete: nothing to compare yet
+                bp = c = b.assign(reason="inputs missing: no case of the control complete", carried_by="no comparison")
+        frames.append(control_rows(b, c, control_label(config, lvl), lvl, done, missing, baseline_present=bp))
     return pd.concat(frames, ignore_index=True) if frames else pd.DataFrame(columns=CONTROL_COLUMNS)
 
 
 def robust_column(base_verdicts: dict[int, str], controls: pd.DataFrame) -> dict[int, str]:
-    """``robust_under_controls`` per claim from :func:`control_rows`' table (module docstring)."""
+    """``robust_under_controls`` per claim from :func:`control_rows`' table (module docstring): a
+    verdict changes only under a complete control; under one partly run it is pending."""
     out = {}
     for k, verdict in base_verdicts.items():
         rows = controls[controls["claim"] == k] if len(controls) else controls
@@ -190,9 +211,9 @@ def robust_column(base_verdicts: dict[int, str], controls: pd.DataFrame) -> dict
         if not len(covering):
             out[k] = "not covered by any control"
             continue
-        changed = [r["control"] for _, r in covering.iterrows() if "changes" in str(r["status"])]
-        pending = [r["control"] for _, r in covering.iterrows() if str(r["status"]) == "not run"
-                   or str(r["status"]).startswith("partly run")]
+        status = covering["status"].astype(str)
+        changed = list(covering.loc[status == "changes", "control"])
+        pending = list(covering.loc[(status == "not run") | status.str.startswith("partly run"), "control"])
         if changed:
             out[k] = "no: changes under " + ", ".join(changed) + (f" (pending: {', '.join(pending)})" if pending else "")
         elif pending:
@@ -344,9 +365,21 @@ def convergence_rows(config: dict, base: str, root: Path) -> pd.DataFrame:
 # health side by side
 
 
+def density_floor(run_dir: Path) -> float | None:
+    """The run's density floor (``numerics.density_floor`` of its ``scene.yaml``, the model's default
+    where the scene leaves it out; None: no floor). A run without its scene is an error."""
+    path = Path(run_dir) / "scene.yaml"
+    if not path.is_file():
+        raise FileNotFoundError(f"{path} is missing: the run's density floor is read from its scene; "
+                                "restore it from git or rerun the case")
+    numerics = (yaml.safe_load(path.read_text()) or {}).get("numerics") or {}
+    return numerics.get("density_floor", Numerics.model_fields["density_floor"].default)
+
+
 def run_health_figures(run_dir: Path) -> dict:
     """Mass put back by the mass correction (of the fluid mass; of the mass through the pipe) and
-    the share of samples with a node at the density floor, of one run (NaN where not recorded)."""
+    the share of samples with a node at the run's density floor (:func:`density_floor`; 0 without
+    a floor), of one run (NaN where not recorded)."""
     s = read_json(Path(run_dir) / "summary.json")
     if s is None:
         return {"status": "not run"}
@@ -355,7 +388,8 @@ def run_health_figures(run_dir: Path) -> dict:
     if fr is not None and "max_density_deviation" in fr and len(fr):
         dev = fr["max_density_deviation"].astype(float)
         n = int(len(dev))
-        share = float((dev >= (1.0 - FLOOR_RHO_MIN) - 1e-9).mean())
+        floor = density_floor(run_dir)
+        share = 0.0 if floor is None else float((dev >= (1.0 - floor) - 1e-9).mean())
     return {"status": s.get("status"), "mass_corrected_fluid": mass_corrected_rel(s),
             "mass_corrected_throughflow": mass_corrected_throughflow(s), "floor_sample_share": share, "samples": n}
 
@@ -445,9 +479,10 @@ def cost_rows(config: dict, base: str, root: Path, controls: pd.DataFrame) -> pd
         rows.append({"control": label, "level": lvl, "core_hours_measured": measured, "core_hours_planned": planned,
                      "source": src, "runs_done": len(done), "runs_planned": len(done) + len(missing),
                      "claims_covered": int((~sub["status"].str.startswith("not covered")).sum()) if len(sub) else 0,
-                     "claims_changed": ",".join(str(int(k)) for k in sub.loc[sub["status"].str.contains("changes"), "claim"])
+                     # a complete control's verdicts only (a partly run one's are pending)
+                     "claims_changed": ",".join(str(int(k)) for k in sub.loc[sub["status"] == "changes", "claim"])
                      if len(sub) else "",
-                     "claims_held": int(sub["status"].str.contains("holds").sum()) if len(sub) else 0})
+                     "claims_held": int((sub["status"] == "holds").sum()) if len(sub) else 0})
     return pd.DataFrame(rows)
 
 

@@ -22,10 +22,11 @@ def declared(case: dict | None) -> dict | None:
     return (case or {}).get("unpackable") or None
 
 
-def _read(path: Path) -> dict | None:
+def read_json(path: Path) -> dict | None:
+    """A JSON record (a run's summary or statistics), or None where it is absent or unreadable."""
     try:
         return json.loads(Path(path).read_text())
-    except (FileNotFoundError, ValueError):
+    except (OSError, ValueError):
         return None
 
 
@@ -34,7 +35,7 @@ def record(name: str, case: dict, root: Path | str = ".") -> dict:
     the packing attempt's target, highest concentration reached and message (``attempt`` read
     relative to ``root``, the repository; absent: named in the message, concentrations None)."""
     dec = declared(case) or {}
-    attempt = _read(Path(root) / str(dec.get("attempt", ""))) if dec.get("attempt") else None
+    attempt = read_json(Path(root) / str(dec.get("attempt", ""))) if dec.get("attempt") else None
     att = attempt or {}
     target = att.get("concentration_target", ((case or {}).get("particles") or {}).get("concentration"))
     reached = att.get("concentration_reached")
@@ -53,7 +54,7 @@ def read_summary(case_dir: Path | str, case: dict | None = None, root: Path | st
     """``summary.json`` of a case or run directory; for a case declared unpackable (``case``, its
     config entry) that has none, :func:`record`; else None."""
     case_dir = Path(case_dir)
-    s = _read(case_dir / "summary.json")
+    s = read_json(case_dir / "summary.json")
     if s is not None or not declared(case):
         return s
     name = case_dir.parent.name if case_dir.name.startswith("seed") else case_dir.name
@@ -74,7 +75,7 @@ def problems(config: dict, root: Path | str = ".") -> list[str]:
         if not (case or {}).get("particles"):
             out.append(f"{where}: a particle-free case cannot be unpackable. Fix: remove the entry")
             continue
-        att = _read(Path(root) / str(dec.get("attempt", "")))
+        att = read_json(Path(root) / str(dec.get("attempt", "")))
         if att is not None and att.get("status") != "unpackable":
             out.append(f"{where}.attempt: {dec.get('attempt')} says status {att.get('status')!r}, not "
                        "'unpackable'. Fix: remove the declaration: the case packs")

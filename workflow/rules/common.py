@@ -213,14 +213,35 @@ class Pipeline:
                                                f"results/{lvl}/cases/{run}/stats.json") if Path(f).exists()]
         return files
 
+    def control_runs_present(self, level: str) -> list[str]:
+        """The runs of a control level whose summary is there (its production is run apart:
+        `snakemake controls`)."""
+        return [r for r in level_runs(self.config, level) if run_present(level, r)]
+
     def robustness_inputs(self, wildcards) -> list:
-        # the control levels' records present (their production is run apart: `snakemake controls`)
+        # each control run present with its statistics (built here where missing: a run just copied
+        # in), and a seeded level's combined record of every case with a packing present
         files = []
         for lvl in control_levels(self.config, wildcards.fidelity):
-            for run in sorted(set(level_runs(self.config, lvl)) | set(level_cases(self.config, lvl))):
-                files += [ancient(f) for f in (f"results/{lvl}/cases/{run}/summary.json",
-                                               f"results/{lvl}/cases/{run}/stats.json") if Path(f).exists()]
+            present = self.control_runs_present(lvl)
+            for run in present:
+                files.append(ancient(f"results/{lvl}/cases/{run}/summary.json"))
+                if self.config["cases"][split_run(run)[0]].get("particles") is not None:
+                    files.append(ancient(f"results/{lvl}/cases/{run}/stats.json"))
+            if "seeds" in self.config["fidelities"][lvl]:
+                files += [ancient(f"results/{lvl}/cases/{c}/stats.json")
+                          for c in sorted({split_run(r)[0] for r in present if "/seed" in r})]
         return files
+
+    def robustness_present(self, wildcards) -> str:
+        """The control runs present with how each ended: a rerun trigger (params), so a run added
+        since the last build rebuilds the robustness outputs although the inputs are ancient."""
+        rows = []
+        for lvl in control_levels(self.config, wildcards.fidelity):
+            for run in self.control_runs_present(lvl):
+                status = json.loads(Path("results", lvl, "cases", run, "summary.json").read_text()).get("status")
+                rows.append(f"{lvl}/{run}={status}")
+        return "; ".join(rows)
 
     def claims_robustness(self, wildcards) -> dict:
         # the controls' verdicts and the measured systematic term, where this level has controls

@@ -48,6 +48,9 @@ rule robustness:
     localrule: True
     input:
         PIPE.robustness_inputs,
+    params:
+        # the control runs present and how each ended: a new one rebuilds this (its inputs are ancient)
+        present=PIPE.robustness_present,
     output:
         controls="results/{fidelity}/robustness/controls.csv",
         shifts="results/{fidelity}/robustness/shifts.csv",
