@@ -10,29 +10,40 @@ method (``--methods``: ``paper``, the committed scene; ``accurate``, with the nu
 ``lbmpipe.reproduction.cases.METHODS["accurate"]``; ``accurate_fluid`` likewise; ``OPTIONS``: one
 option of them on the paper's method, to find which moves the mass) and refill (``numerics.refill``):
 ``equilibrium`` (the paper's) and ``extrapolated`` (Grad's reconstruction with the neighbours'
-non-equilibrium stress).
+non-equilibrium stress). ``--trt-magic`` adds runs of the paper's method with ``collision: trt`` at
+each magic parameter Lambda (``bgk``: ``(tau - 1/2)^2``, where TRT's rates are BGK's); with
+half-way bounce-back Lambda sets where the particle surfaces sit (``benchmarks/trt_wall_position.py``).
+``--mach-factor`` multiplies ``dt`` at fixed dx as a level's ``mach_factor`` does
+(``cases.fidelity_numerics``; tau - 1/2 and the lattice Mach number times it) and divides
+``--steps`` by it: the same physical time.
 
 Printed per run, from the simulation's own tallies (the ``summary.json`` records):
   * ``mass_correction``: the mass the particles' mass correction put back (lattice units, the
     fluid density being 1: in node volumes) and as a share of the pipe's fluid mass at the start;
-  * ``density_floor``: node updates floored and the mass the floor added;
+  * ``density_floor``: node updates floored;
   * the largest ``|rho - 1|`` over the fluid, checked every 10 steps; the uncovered nodes per step
-    (mean); ms per step of the remap effect (the refill runs inside it) and of the whole step,
-    without the first step (it compiles what numba's cache lacks);
+    (mean); ms per step, without the first step (it compiles what numba's cache lacks);
   * where the mass goes, as the deficit ``rho_t n_fluid - M`` the correction restores (``rho_t``:
     its target mean density): ``cover`` = sum over the nodes covered of ``rho - rho_t`` (a node
     denser than the mean leaves with more than its share), ``uncover`` = sum over the nodes
     uncovered of ``rho_t - rho`` (a refilled node lighter than the mean), and ``links`` the rest
     (the moving-wall and interpolated link rules, the pipe wall, forcing: the deficit's change over
     the step outside the remap); cover + uncover + links = the mass put back + the deficit left at
-    the end.
+    the end; ``d cov`` and ``d unc``: ``cover`` and ``uncover`` per node event (the density step
+    across a moving surface the remap carries, ``rho = 3 p``);
+  * ``drive``: the flow-rate control's body force over Hagen-Poiseuille's, mean over the run's
+    second half: the suspension's resistance, which grows as the surfaces move out;
+  * ``mean|rho-1|``: over the fluid, mean of the samples every 10 steps.
 
 Run (one thread; about 2-4 minutes per run on one core of a 2-core EPYC host with numba's cache
 warm):
 
     python benchmarks/refill_mass.py [--cases cube8_c50_re9.4 cyl8x16_c30_re9.4] [--seed 1]
         [--level credible] [--methods paper] [--refills equilibrium extrapolated] [--steps 600] [--threads 1]
+        [--trt-magic 3/16 bgk] [--mach-factor 0.5]
     python benchmarks/refill_mass.py --methods paper accurate --refills equilibrium   # the mass item
+    python benchmarks/refill_mass.py --refills equilibrium --methods paper --trt-magic 3/16 1/4 1/2 1 bgk
+    python benchmarks/refill_mass.py --refills equilibrium --methods paper accurate --mach-factor 0.5
 """
 
 from __future__ import annotations
