@@ -4,7 +4,7 @@ nodes (issue 44 item 3 and the validation's mass item).
 The paper's pipe (50 mm x 100 mm, dx = 1 mm) at the ``credible`` level's settings, built as a run
 builds it from the COMMITTED scenes ``results/<level>/cases/<case>/seed<seed>/scene.yaml`` and
 the packings they name (``benchmarks/step.py`` does the same); by default ``cube8_c50_re9.4``
-(192 cubes at 50 %) and ``cyl8x16_c30_re9.4`` (56 cylinders at 30 %), seed 1. Each case runs
+(192 cubes at 50 %) and ``cyl8x16_c30_re9.4`` (73 cylinders at 30 %), seed 1. Each case runs
 ``--steps`` steps from the committed start (particles at rest in the parabolic flow) once per
 method (``--methods``: ``paper``, the committed scene; ``accurate``, with the numerics of
 ``lbmpipe.reproduction.cases.METHODS["accurate"]``; ``accurate_fluid`` likewise; ``OPTIONS``: one
