@@ -195,7 +195,7 @@ def _snakemake() -> str:
 
 def test_controls_target_plans_only_the_control_levels_runs_and_nothing_under_new_runs_none():
     config = _config()
-    levels = R.control_levels(config, "credible")
+    levels = R.control_levels(config, "credible") + R.unstable_levels(config, "credible")
     res = subprocess.run([_snakemake(), "-n", "--nolock", "controls", "--config", "new_runs=all"], cwd=ROOT,
                          capture_output=True, text=True, timeout=600)
     assert res.returncode == 0, res.stderr[-2000:]
@@ -284,3 +284,30 @@ def test_a_control_run_copied_in_asks_for_its_statistics_and_changes_the_robustn
     assert before == f"{lvl}/{first}=completed"
     _run(tmp_path / "results" / lvl / "cases" / second, status="unstable")
     assert pipe.robustness_present(wc) == f"{before}; {lvl}/{second}=unstable"
+
+
+def test_an_unstable_packing_rerun_with_the_reference_method_says_how_each_ended_beside_the_base(tmp_path):
+    """Issue 47 item 5: a level with `unstable_of` reruns named packings (`seeds: [3]`) of the base's
+    unstable runs; the table gives both endings and the document's cause list carries the rerun's."""
+    config = {"cases": {"cube24_c30_re26": {"reynolds": 26, "particles": {"shape": "cube", "edge_mm": 24,
+                                                                        "concentration": 0.3}}},
+              "fidelities": {"base": {"seeds": 3},
+                             "again": {"seeds": [3], "method": "accurate", "mach_factor": 0.5, "unstable_of": "base",
+                                       "cases": ["cube24_c30_re26"]}}}
+    assert level_runs(config, "again") == ["cube24_c30_re26/seed3"]
+    assert R.unstable_levels(config, "base") == ["again"]
+    _run(tmp_path / "base/cases/cube24_c30_re26/seed3", status="unstable")
+    rows = R.unstable_rows(config, "base", tmp_path)
+    assert rows[["base_status", "status"]].values.tolist() == [["unstable", "not run"]]
+    _run(tmp_path / "again/cases/cube24_c30_re26/seed3")
+    rows = R.unstable_rows(config, "base", tmp_path)
+    assert rows[["base_status", "status", "steps", "method"]].values.tolist() == [["unstable", "completed", 1000,
+                                                                                   "accurate"]]
+    (tmp_path / "base/robustness").mkdir()
+    rows.to_csv(tmp_path / "base/robustness/unstable.csv", index=False)
+    (tmp_path / "base/unstable").mkdir()
+    (tmp_path / "base/unstable/cube24_c30_re26.json").write_text(json.dumps({"case": "cube24_c30_re26",
+                                                                             "mechanism": ["checkerboard mode"]}))
+    cause = R.unstable_causes(tmp_path / "base")[0]
+    assert cause["rerun"] == "accurate at Mach x 0.5 (again): completed after 1000 steps"
+    assert cause["mechanism"] == "checkerboard mode"

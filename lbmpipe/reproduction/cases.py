@@ -195,8 +195,12 @@ def run_case(config: dict, run: str) -> tuple[str, dict]:
 
 
 def level_seeds(fidelity: dict) -> list[int]:
-    """The packing seeds a fidelity level runs for every particle case: ``[1, ..., seeds]``."""
-    return list(range(1, int(fidelity.get("seeds", 1)) + 1))
+    """The packing seeds a fidelity level runs for every particle case: ``[1, ..., seeds]``, or the
+    seeds a list names (``seeds: [3]``: one packing of another level again)."""
+    seeds = fidelity.get("seeds", 1)
+    if isinstance(seeds, list):
+        return sorted(int(k) for k in seeds)
+    return list(range(1, int(seeds) + 1))
 
 
 def level_cases(config: dict, fidelity_name: str) -> list[str]:
@@ -435,7 +439,7 @@ def config_problems(config: dict, schema_path: str | Path, check=None) -> list[s
                 "Fix: add it under `fidelities` or pick an existing level (--config fidelity=smoke)"]
     for fname, fid in config["fidelities"].items():
         out.extend(mach_factor_problems(fname, fid))
-        for key in ("compare_with", "convergence_of", "control_of", "refines"):  # levels that name another level
+        for key in ("compare_with", "convergence_of", "control_of", "refines", "unstable_of"):  # levels naming a level
             other = fid.get(key)
             if other is not None and other not in config["fidelities"]:
                 out.append(f"config error in fidelities.{fname}.{key}: {other!r} is not a level. "

@@ -25,6 +25,8 @@ A level with ``control_of: <base>`` (``config.yaml``: ``credible_ma2``, ``credib
 - ``health.csv``: per case the mass the particles' mass correction puts back (relative to the pipe's
   fluid mass and to the mass through the pipe) and the share of samples at the density floor, the
   paper's method (``base``) beside the reference (the control labelled ``reference``).
+- ``unstable.csv``: the runs of ``base`` that ended unstable, rerun by a level with ``unstable_of:
+  base`` (the reference method): how each ended there (:func:`unstable_rows`).
 - ``cost.csv`` and ``cost_robustness.png``: each control's core-hours (measured from its summaries,
   else planned with the cost model) against the verdicts it changes.
 """
@@ -55,6 +57,8 @@ from .methods import SEED1_FILES, completed_record, stats_values
 from .plotting import plt, save
 from .statistics import aggregate
 
+UNSTABLE_COLUMNS = ["run", "level", "method", "mach_factor", "base_status", "base_steps", "status", "steps",
+                    "simulated_s", "wall_s"]
 CONTROL_COLUMNS = ["claim", "control", "level", "verdict", "baseline", "status", "runs_done", "runs_planned", "missing"]
 SHIFT_COLUMNS = ["control", "case", "observable", "key", "base", "base_ci95", "control_value", "control_ci95", "shift"]
 CONVERGENCE_COLUMNS = ["case", "observable", "coarse", "coarse_ci95", "fine", "fine_ci95", "rel_diff", "status", "figures"]
@@ -70,6 +74,11 @@ CONVERGED_REL, CONVERGED_MAX_CI = 0.05, 0.10
 def control_levels(config: dict, base: str) -> list[str]:
     """The levels with ``control_of: base``, in the config's order."""
     return [n for n, f in config["fidelities"].items() if f.get("control_of") == base]
+
+
+def unstable_levels(config: dict, base: str) -> list[str]:
+    """The levels with ``unstable_of: base``: ``base``'s unstable packings rerun with another method."""
+    return [n for n, f in config["fidelities"].items() if f.get("unstable_of") == base]
 
 
 def control_label(config: dict, level: str) -> str:
@@ -529,6 +538,7 @@ def write(config: dict, base: str, root: Path, out_dir: Path) -> dict:
     conv = convergence_rows(config, base, root)
     health = health_rows(config, base, root)
     cost = cost_rows(config, base, root, controls)
+    unstable_rows(config, base, root).to_csv(out_dir / "unstable.csv", index=False, float_format="%.6g")
     controls.to_csv(out_dir / "controls.csv", index=False)
     shifts.to_csv(out_dir / "shifts.csv", index=False, float_format="%.6g")
     conv.to_csv(out_dir / "convergence.csv", index=False, float_format="%.6g")
@@ -588,15 +598,39 @@ def add_to_claims(claims_csv: Path, controls_csv: Path, table_csv: Path) -> pd.D
 # the document
 
 
+def unstable_rows(config: dict, base: str, root: Path) -> pd.DataFrame:
+    """Per run of each ``unstable_of: base`` level: how ``base``'s run of the same packing ended
+    (status, steps) beside how this one did (``not run`` where its summary is missing)."""
+    rows = []
+    for lvl in unstable_levels(config, base):
+        fid = config["fidelities"][lvl]
+        for run in level_runs(config, lvl):
+            b = read_json(Path(root) / base / "cases" / run / "summary.json") or {}
+            s = read_json(Path(root) / lvl / "cases" / run / "summary.json") or {}
+            rows.append({"run": run, "level": lvl, "method": fid.get("method", "paper"),
+                         "mach_factor": fid.get("mach_factor", 1.0), "base_status": b.get("status", "not run"),
+                         "base_steps": b.get("steps"), "status": s.get("status", "not run"), "steps": s.get("steps"),
+                         "simulated_s": s.get("simulated_seconds"), "wall_s": s.get("wall_seconds")})
+    return pd.DataFrame(rows, columns=UNSTABLE_COLUMNS)
+
+
 def unstable_causes(fid_dir: Path) -> list[dict]:
     """The measured cause of each unstable run (``unstable/<case>.json`` of
     ``benchmarks/unstable_cause.py``): the guard's message says "likely cause"; this is the
     mechanism the evidence shows, and the variants' outcomes."""
     out = []
+    try:
+        reruns = pd.read_csv(Path(fid_dir) / "robustness" / "unstable.csv", keep_default_na=False)
+    except (OSError, pd.errors.EmptyDataError):
+        reruns = pd.DataFrame(columns=UNSTABLE_COLUMNS)
     for path in sorted((Path(fid_dir) / "unstable").glob("*.json")):
         d = read_json(path) or {}
         variants = "; ".join(f"{v.get('variant')} ({v.get('mode')}): {v.get('status')}" for v in d.get("variants") or [])
-        out.append({"case": d.get("case", path.stem), "scene": d.get("scene", ""),
+        case = d.get("case", path.stem)
+        again = [f"{r.method} at Mach x {r.mach_factor} ({r.level}): {r.status}"
+                 + (f" after {int(float(r.steps))} steps" if str(r.steps) not in ("", "nan", "None") else "")
+                 for r in reruns.itertuples() if str(r.run).split("/seed")[0] == case]
+        out.append({"case": case, "scene": d.get("scene", ""), "rerun": "; ".join(again) or "not rerun",
                     "step": (d.get("committed") or {}).get("steps"),
                     "mechanism": " ".join(d.get("mechanism") or []) or "not measured",
                     "variants": variants or "none run", "complete": bool(d.get("complete")),

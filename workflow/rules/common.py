@@ -23,7 +23,7 @@ from lbmpipe.reproduction.cases import (case_scene, estimate_minutes, level_case
 from lbmpipe.reproduction.convergence import levels as convergence_levels
 from lbmpipe.reproduction.literate import study_level
 from lbmpipe.reproduction.methods import comparison_level
-from lbmpipe.reproduction.robustness import control_levels
+from lbmpipe.reproduction.robustness import control_levels, unstable_levels
 from lbmpipe.scene import Scene
 from lbmpipe.units import LatticeParams, derive
 
@@ -197,7 +197,8 @@ class Pipeline:
             extra.append(f"results/{wildcards.fidelity}/convergence/summary.json")
         if control_levels(self.config, wildcards.fidelity):
             extra += [f"results/{wildcards.fidelity}/{name}" for name in
-                      ("robustness/summary.json", "robustness/cost_robustness.png", "tables/robustness.csv")]
+                      ("robustness/summary.json", "robustness/cost_robustness.png", "robustness/unstable.csv",
+                       "tables/robustness.csv")]
         return extra
 
     def method_inputs(self, wildcards) -> list:
@@ -231,13 +232,15 @@ class Pipeline:
             if "seeds" in self.config["fidelities"][lvl]:
                 files += [ancient(f"results/{lvl}/cases/{c}/stats.json")
                           for c in sorted({split_run(r)[0] for r in present if "/seed" in r})]
+        for lvl in unstable_levels(self.config, wildcards.fidelity):  # how each rerun ended: its summary
+            files += [ancient(f"results/{lvl}/cases/{run}/summary.json") for run in self.control_runs_present(lvl)]
         return files
 
     def robustness_present(self, wildcards) -> str:
         """The control runs present with how each ended: a rerun trigger (params), so a run added
         since the last build rebuilds the robustness outputs although the inputs are ancient."""
         rows = []
-        for lvl in control_levels(self.config, wildcards.fidelity):
+        for lvl in control_levels(self.config, wildcards.fidelity) + unstable_levels(self.config, wildcards.fidelity):
             for run in self.control_runs_present(lvl):
                 status = json.loads(Path("results", lvl, "cases", run, "summary.json").read_text()).get("status")
                 rows.append(f"{lvl}/{run}={status}")
@@ -262,6 +265,8 @@ class Pipeline:
             if seeded:
                 files += [f"results/{lvl}/cases/{c}/stats.json" for c in level_cases(self.config, lvl)
                           if self.config["cases"][c].get("particles") is not None]
+        for lvl in unstable_levels(self.config, self.fidelity):  # the unstable packings rerun: their summaries
+            files += [f"results/{lvl}/cases/{run}/summary.json" for run in level_runs(self.config, lvl)]
         if self.new_runs != "all":
             files = [f for f in files if Path(f).exists()]
         return files

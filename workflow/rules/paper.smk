@@ -58,6 +58,7 @@ rule robustness:
         convergence="results/{fidelity}/robustness/convergence.csv",
         health="results/{fidelity}/robustness/health.csv",
         cost="results/{fidelity}/robustness/cost.csv",
+        unstable="results/{fidelity}/robustness/unstable.csv",
         figure="results/{fidelity}/robustness/cost_robustness.png",
         figure_pdf="results/{fidelity}/robustness/cost_robustness.pdf",
         summary="results/{fidelity}/robustness/summary.json",
