@@ -33,8 +33,8 @@ from .robustness import robustness_section
 
 from .unpackable import read_summary
 from .document_sections import (DECISIONS, PAPER_CAPTIONS, case_rows, convergence_section, figure_entries, fmt,
-                                health_section, method_comparison_section, method_section, our_caption,
-                                parameter_rows, read_table, runtime_section, stationarity_section, study_section,
+                                health_section, method_comparison_section, method_section,
+                                parameter_rows, read_table, runtime_section, stationarity_section,
                                 table_of)
 from .equations import check_links, equation_index, key_equations, other_equations, relative_href
 from .claim_rules import find_case
@@ -408,10 +408,9 @@ def build_context(repo_root: Path, fid_dir: Path, fidelity: str, config: dict, o
         "decisions": decisions,
         "claims": claims_ctx,
         "stability": table_of(stability, STABILITY_COLUMNS) if stability is not None else None,
-        "study": study_section(study_dir, out_dir),
         "study_level": study_level(config, fidelity),
         "health": health_ctx,
-        "runtime": _current_levels(runtime_section(fid_dir, fidelity), config, fidelity),
+        "runtime": _current_levels(runtime_section(fid_dir, fidelity), config, fidelity, fid_dir),
         "method": method_comparison_section(fid_dir, fidelity, config, out_dir),
         "convergence": convergence_section(fid_dir, fidelity, config, out_dir),
         "robustness": robustness_section(fid_dir, out_dir),
@@ -433,9 +432,9 @@ def _related_levels(config: dict, fidelity: str) -> set[str]:
                          ((v or {}).get("control_of"), (v or {}).get("convergence_of"), (v or {}).get("compare_with"))}
 
 
-def _current_levels(runtime: dict, config: dict, fidelity: str) -> dict:
-    """``runtime`` with its per-level rows cut to :func:`_related_levels`."""
-    mine = _related_levels(config, fidelity)
+def _current_levels(runtime: dict, config: dict, fidelity: str, fid_dir: Path) -> dict:
+    """``runtime`` with its per-level rows cut to :func:`_related_levels` (and the results folder's own)."""
+    mine = _related_levels(config, fidelity) | {Path(fid_dir).name}
     return {**runtime, "levels": [lv for lv in runtime["levels"] if lv["level"] in mine]}
 
 
