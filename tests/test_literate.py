@@ -10,7 +10,8 @@ import pandas as pd
 import pytest
 import yaml
 
-from lbmpipe.reproduction import claims, document_sections, equations, literate
+from lbmpipe.reproduction import claims, document_sections, equations, findings, literate
+from lbmpipe.reproduction.snapshots import fig3_cases
 from lbmpipe.reproduction.cases import case_scene
 from lbmpipe.scene import Scene
 from lbmpipe.units import derive
@@ -153,7 +154,9 @@ def test_sections_without_input_say_they_were_not_built(tmp_path, config):
     fid_dir.mkdir(parents=True)
     out = literate.build_document(REPO, fid_dir, "smoke", config, fid_dir / "reproduction.md")
     text = out.read_text()
-    for rel in ("claims.csv", "tables/stability.csv", "tables/runtime.csv", "study/", "figures/fig*.png"):
+    # (the accuracy-cost study of the lattice is no longer shown: Appendix F reads the level's own controls)
+    for rel in ("claims.csv", "tables/stability.csv", "tables/runtime.csv", "tables/run_health.csv",
+                "figures/fig*.png"):
         assert re.search(rf"not built at this level: `[^`]*/{re.escape(rel)}` missing", text), rel
     assert equations.check_links(out, REPO) == []
 
@@ -249,7 +252,11 @@ def test_committed_document_anchors_each_claim_once_and_shows_one_snapshot_galle
     anchors = re.findall(r'\sid="(claim-\d+)"', page)
     assert sorted(anchors) == sorted(f"claim-{c}" for c in claims_csv["claim"])
     snapshots = re.findall(r"!\[[^\]]*\]\(([^)]*fig3_[^)]*)\)", text)
+    # Fig. 3: one image of four snapshots (the file name the pipeline's paper rule writes), each case named
     assert len(snapshots) == 1 and snapshots[0].endswith("figures/fig3_gallery.png")
+    config = yaml.safe_load((REPO / "config.yaml").read_text())
+    shown = fig3_cases(config, REPO / "results" / "paper")
+    assert len(shown) == 4 and all(f"`{c}`" in text for c in shown)
     assert (md.parent / snapshots[0]).resolve().is_file()
     # the key equations are displayed maths, converted to MathML
     assert page.count('display="block"') >= len(equations.KEY_EQUATIONS)
@@ -404,3 +411,143 @@ def test_run_health_of_a_case_with_an_unstable_packing_says_so_not_completed(tmp
     (case / "summary.json").write_text(json.dumps({"status": "unstable", "message": "seed 3: unstable"}))
     row = health.health_row("c", case, health.thresholds()["health"])
     assert row["status"] == "unstable (seed 3: unstable)"
+
+
+# --------------------------------------------------------------------------------------------------
+# issue 48: the document reads as a paper, within its word limits
+
+
+@pytest.mark.parametrize("level", ["paper", "credible"])
+def test_committed_documents_keep_the_main_text_and_the_whole_within_their_word_limits(level):
+    """Both committed documents: at most MAIN_WORDS before the first appendix, TOTAL_WORDS in all."""
+    md = REPO / "paper" / f"reproduction_{level}.md"
+    if not md.is_file():
+        pytest.skip(f"{md.name} is not in this checkout")
+    text = md.read_text(encoding="utf-8")
+    assert (literate.MAIN_WORDS, literate.TOTAL_WORDS) == (4000, 10000)
+    main, whole = literate.word_count(literate.main_text(text)), literate.word_count(text)
+    assert main <= literate.MAIN_WORDS, f"{md.name}: main text {main} words"
+    assert whole <= literate.TOTAL_WORDS, f"{md.name}: {whole} words"
+    # and by a plain whitespace count (link targets, table rules and code included), as issue 48 states them
+    plain_main, plain = len(literate.main_text(text).split()), len(text.split())
+    assert plain_main <= literate.MAIN_WORDS, f"{md.name}: main text {plain_main} whitespace-separated tokens"
+    assert plain <= literate.TOTAL_WORDS, f"{md.name}: {plain} whitespace-separated tokens"
+    # the abstract gives findings, not only counts: claims by number and the physical results
+    abstract = text.split("## Abstract", 1)[1].split("\n## ", 1)[0]
+    assert "(#claim-" in abstract and "What we found:" in abstract and "mass correction" in abstract
+    # the run-cost model per processor lives in benchmarks/README.md, linked
+    assert "## Appendix G" not in text and "benchmarks/README.md#run-cost-per-processor" in text
+
+
+def test_a_case_that_did_not_complete_is_named_one_way_no_numbers_and_left_out():
+    row = {"case": "cube24_c30_re26", "status": "unstable", "omega_x": 0.1, "omega_y": 0.1, "omega_z": 0.1,
+           "ci_x": 0.01, "ci_y": 0.01, "ci_z": 0.01}
+    assert literate._omega_line(row) is None
+    line = literate._not_completed_line(row, {"cube24_c30_re26": {"status": "unstable (seed 3: unstable)"}})
+    assert line == "`cube24_c30_re26`: unstable (seed 3: unstable); no bars, and left out of the claims"
+    assert "|Ω|" in literate._omega_line({**row, "status": "completed"})
+
+
+def _tables(fid, av_rows, ori_rows):
+    (fid / "tables").mkdir(parents=True)
+    pd.DataFrame(av_rows).to_csv(fid / "tables" / "angular_velocity.csv", index=False)
+    pd.DataFrame(ori_rows).to_csv(fid / "tables" / "orientation_summary.csv", index=False)
+
+
+def _av(case, shape, conc, omega, edge=None, d=None, length=None, flags="", status="completed"):
+    return {"case": case, "shape": shape, "edge_mm": edge, "diameter_mm": d, "length_mm": length,
+            "concentration": conc, "reynolds": 9.4, "collisions": True, "status": status, "n_particles": 4,
+            "omega_x": omega, "omega_y": omega, "omega_z": omega, "flags": flags}
+
+
+def test_physical_results_are_computed_from_the_tables_cubes_against_cylinders_and_random_orientation(tmp_path):
+    fid = tmp_path / "lvl"
+    _tables(fid,
+            [_av("cube8_c30", "cube", 0.3, 0.5, edge=8), _av("cyl8x8_c30", "cylinder", 0.3, 1.5, d=8, length=8),
+             _av("cube8_c50", "cube", 0.5, 0.25, edge=8), _av("cube24_c30", "cube", 0.3, 0.05, edge=24,
+                                                               flags="locked;unhealthy")],
+            [{"case": "cyl8x8_c30", "kind": "cyl_axis_angle", "status": "completed", "collisions": True,
+              "mean_deg": 60.0, "ci95_deg": 5.0},
+             {"case": "cube24_c30", "kind": "cube_axis_angle", "status": "completed", "collisions": True,
+              "mean_deg": 5.0, "ci95_deg": 1.0}])
+    text = " ".join(findings.physical_results(fid))
+    assert findings.ISOTROPIC_MEAN_DEG == pytest.approx(57.2958, abs=1e-4)
+    assert "do not align" in text and "60 deg over 1 cases" in text and "inside the 95 % interval of 1 of them" in text
+    assert "Cubes spin 3 times slower than cylinders of the same size" in text
+    assert "by a factor 2" in text
+    assert "The 24 mm cubes (4 per pipe) lock: 1 of 1 cases run are flagged locked" in text
+    # the opposite ordering reads the other way round, from the same tables
+    fid2 = tmp_path / "other"
+    _tables(fid2, [_av("cube8_c30", "cube", 0.3, 3.0, edge=8), _av("cyl8x8_c30", "cylinder", 0.3, 1.5, d=8, length=8)],
+            [{"case": "cyl8x8_c30", "kind": "cyl_axis_angle", "status": "completed", "collisions": True,
+              "mean_deg": 20.0, "ci95_deg": 5.0}])
+    text2 = " ".join(findings.physical_results(fid2))
+    assert "Cubes spin 2 times faster" in text2 and "lean towards the flow" in text2
+
+
+def test_claim_findings_render_the_robustness_tables_strings_pending_included(tmp_path):
+    fid = tmp_path / "lvl"
+    (fid / "tables").mkdir(parents=True)
+    pd.DataFrame({"claim": [1, 2, 3], "statement": ["a.", "b.", "c."],
+                  "verdict": ["reproduced", "contradicted", "reproduced"]}).to_csv(fid / "claims.csv", index=False)
+    pd.DataFrame({"claim": [1, 2, 3], "under X": ["reproduced (holds; baseline reproduced)", "not run",
+                                                  "inconclusive (changes; baseline reproduced)"],
+                  "robust_under_controls": ["yes", "pending: X not (fully) run", "no: changes under X"]}
+                 ).to_csv(fid / "tables" / "robustness.csv", index=False)
+    f = findings.claim_findings(fid)
+    assert f["verdicts"] == "reproduced: claims [1](#claim-1), [3](#claim-3); contradicted: claims [2](#claim-2)"
+    assert f["contradicted"] == 'claim 2 ("b")'
+    assert f["robustness"]["by_status"] == "yes: [1](#claim-1); pending: [2](#claim-2); no: [3](#claim-3)"
+    assert f["robustness"]["per_control"] == "under X claims [1](#claim-1) hold and [3](#claim-3) change"
+
+
+def test_why_reads_the_flags_physically_with_the_worst_value_not_a_list_of_seeds(tmp_path):
+    fid = tmp_path / "lvl"
+    (fid / "tables").mkdir(parents=True)
+    pd.DataFrame({"case": ["a/seed1", "a/seed2", "b/seed1"], "status": ["completed"] * 3,
+                  "mass_floor_rel": [0, 0, 0], "mass_corrected_rel": [0.5, 0.6, 0.1],
+                  "mass_corrected_throughflow": [0.02, 0.05, 0.001], "density_deviation_max": [0.4, 0.9, 0.1]}
+                 ).to_csv(fid / "tables" / "run_health.csv", index=False)
+    config = {"cases": {n: {"particles": {"concentration": 0.3}} for n in ("a", "b")}}
+    rows = [{"case": "a", "status": "completed", "flags": "unhealthy, not steady"},
+            {"case": "b", "status": "completed", "flags": "none"}]
+    text = findings.why(["a", "b"], rows, fid, config)
+    assert text.startswith("1 of 2 cases are flagged (1 unhealthy, 1 not steady).")
+    assert "0.05 of the mass through the pipe (`a/seed2`)" in text and "0.9 (`a/seed2`)" in text
+    assert "seed 1:" not in text and findings.UNHEALTHY_EFFECT["rotation"] in text
+    assert findings.why(["b"], rows, fid, config) == "None of the 1 cases is flagged by the run-health diagnostics."
+    # a case that did not complete is named by its status, as the figure and the claims name it
+    rows += [{"case": "c", "status": "unstable (seed 3: unstable)", "flags": "none"},
+             {"case": "d", "status": "not run", "flags": "none"}]
+    text = findings.why(["a", "c", "d"], rows, fid, config, kind="orientation")
+    assert text.endswith("Unstable: `c`; Not run: `d` (left out of the figure's bars and of the claims).")
+    assert findings.UNHEALTHY_EFFECT["orientation"] in text
+
+
+def test_fig3_shows_a_dilute_and_a_dense_case_of_cylinders_and_of_cubes():
+    config = {"cases": {
+        "flow": {"reynolds": 9.4},
+        "cyl16_c30": {"reynolds": 9.4, "particles": {"shape": "cylinder", "diameter_mm": 16, "length_mm": 16,
+                                                     "concentration": 0.3}},
+        "cyl8_c50_re26": {"reynolds": 26, "particles": {"shape": "cylinder", "diameter_mm": 8, "length_mm": 8,
+                                                        "concentration": 0.5}},
+        "cyl8_c30": {"reynolds": 9.4, "particles": {"shape": "cylinder", "diameter_mm": 8, "length_mm": 8,
+                                                    "concentration": 0.3}},
+        "cyl8_c50": {"reynolds": 9.4, "particles": {"shape": "cylinder", "diameter_mm": 8, "length_mm": 8,
+                                                    "concentration": 0.5}},
+        "cyl8_c30_nocoll": {"reynolds": 9.4, "collisions": False,
+                            "particles": {"shape": "cylinder", "diameter_mm": 8, "length_mm": 8, "concentration": 0.1}},
+        "cube8_c50": {"reynolds": 9.4, "particles": {"shape": "cube", "edge_mm": 8, "concentration": 0.5}},
+        "cube8_c30": {"reynolds": 9.4, "particles": {"shape": "cube", "edge_mm": 8, "concentration": 0.3}}}}
+    assert fig3_cases(config) == ["cyl8_c30", "cyl8_c50", "cube8_c30", "cube8_c50"]
+
+
+def test_claim_appendix_is_one_line_per_claim_linking_the_csv(tmp_path):
+    fid = tmp_path / "lvl"
+    fid.mkdir()
+    pd.DataFrame({"claim": [1, 2], "verdict": ["reproduced", "inconclusive"], "values": ["v1; rest", "v2 (x); y"],
+                  "deciding": ["pooled D = 1", None], "carried_by": ["3 of 4 significant", None]}
+                 ).to_csv(fid / "claims.csv", index=False)
+    lines = findings.claim_lines(fid, "../claims.csv")
+    assert lines == ["Claim 1, **reproduced**: pooled D = 1; 3 of 4 significant ([claims.csv](../claims.csv), row 1).",
+                     "Claim 2, **inconclusive**: v2 ([claims.csv](../claims.csv), row 2)."]

@@ -36,29 +36,29 @@ CUBE_MAX_AXIS_ANGLE_DEG = float(np.degrees(np.arccos(1.0 / np.sqrt(3.0))))
 FIGURE_CAPTIONS = {
     "fig3_snapshot": (
         "Particles at the last sample of a run, drawn in their position and orientation inside the 50 mm pipe "
-        "(z along the pipe axis, mm); colour is the angle between the pipe axis and the cylinder axis "
-        "(nearest cube axis for cubes)."),
+        "(z along the pipe axis, mm), with a 20 mm scale bar and an arrow in the flow direction (+z); colour is the "
+        "angle between the pipe axis and the cylinder axis (nearest cube axis for cubes)."),
     "fig4_cylinders_re26": (
         "Mean |Ω| about the lab x, y and z axes (rad/s) of 16x16 mm and 16x24 mm cylinders at 30 % concentration, "
         "Re 26, over all particles and samples after spin-up; error bars are 95 % confidence half-widths from "
         "batch means of the particle-averaged time series. The paper's experimental values (Zitoun et al. 2001) are "
-        "not available to us and are not drawn; hatched bars mark a flagged case (flag named in the legend)."),
+        "not available to us and are not drawn; hatched bars mark a flagged case, its flags coded above the bar (U unhealthy, S not steady, F frozen, L locked)."),
     "fig5_cubes8_concentration": (
         "Mean |Ω| about x, y, z (rad/s) of 8 mm cubes at Re 9.4, 30 % (LC) against 50 % (HC) concentration; "
-        "error bars are 95 % batch-means confidence half-widths. Hatched bars mark a flagged case (flag named in the "
-        "legend)."),
+        "error bars are 95 % batch-means confidence half-widths. Hatched bars mark a flagged case, its flags coded above "
+        "the bar (U unhealthy, S not steady, F frozen, L locked)."),
     "fig6_cubes24_reynolds": (
         "Mean |Ω| about x, y, z (rad/s) of 24 mm cubes at 30 % concentration, Re 9.4 (LF) against Re 26 (HF); "
-        "error bars are 95 % batch-means confidence half-widths. Hatched bars mark a flagged case (flag named in the "
-        "legend)."),
+        "error bars are 95 % batch-means confidence half-widths. Hatched bars mark a flagged case, its flags coded above "
+        "the bar (U unhealthy, S not steady, F frozen, L locked)."),
     "fig7a_shape_re9.4": (
         "Cubes (8, 16, 24 mm) against cylinders of the same size (8x8, 16x16 mm; no 24 mm cylinder in the study), "
         "30 % concentration, Re 9.4: mean |Ω| about x, y, z (rad/s) with 95 % batch-means confidence half-widths. "
-        "Hatched bars mark a flagged case (flag named at the bar)."),
+        "Hatched bars mark a flagged case, its flags coded above the bar (U unhealthy, S not steady, F frozen, L locked)."),
     "fig7b_shape_re26": (
         "As Fig. 7a at Re 26: cubes (8, 16, 24 mm) against cylinders 8x8 and 16x16 mm, 30 % concentration, "
         "mean |Ω| about x, y, z (rad/s) with 95 % batch-means confidence half-widths. Hatched bars mark a flagged "
-        "case (flag named at the bar)."),
+        "case, its flags coded above the bar (U unhealthy, S not steady, F frozen, L locked)."),
     "fig8_cylinder_orientation": (
         "Distribution of the angle between the cylinder axis and the pipe axis (deg; fraction of particle-samples "
         "after spin-up per 10 deg bin) for the four cylinder sizes at 30 % concentration, Re 9.4 and Re 26; "
@@ -66,7 +66,8 @@ FIGURE_CAPTIONS = {
         "its batch-means half-widths; lbmpipe.reproduction.fractions), inside [0, 1]. Black dashes: the "
         "fraction a uniformly random (isotropic) orientation puts in each bin, 1 - cos θ integrated over the bin. "
         "The paper's experimental distribution (its Fig. 8b, Zitoun et al. 2001) is not available to us and is not "
-        "drawn; hatched bars mark a flagged case (flag named in the legend)."),
+        "drawn; hatched bars mark a flagged case, its flags coded in the legend (U unhealthy, S not steady, F frozen, "
+        "L locked)."),
     "fig9_cube_orientation": (
         "Cube orientation at 30 % concentration, one row per cube size (each row its own vertical scale, so a "
         "case locked in one bin does not flatten the others): left pair, the in-image angle of the cube "
@@ -76,7 +77,8 @@ FIGURE_CAPTIONS = {
         "bin of a case with few independent samples). Black dashes: a uniformly random (isotropic) orientation, "
         "which gives the projected angle uniformly (1/9 per 5 deg bin) and the 3-D angle its closed-form bin "
         "fractions. The paper's experimental distribution (its Fig. 9b, Zitoun et al. 2001) is not available to us "
-        "and is not drawn; a flagged case has hatched bars and its flag in the panel title."),
+        "and is not drawn; a flagged case has hatched bars and its flags coded in the panel title (U unhealthy, S not "
+        "steady, F frozen, L locked)."),
     "fig10_profiles": (
         "Time-averaged axial fluid velocity against radius (mirrored to the full diameter) at Re 26 without "
         "particles and with 16x16 mm cylinders at 30 % concentration, against the Hagen-Poiseuille parabola of the "
@@ -154,6 +156,14 @@ def figure_cases(table, key: str) -> list[str]:
 
 #: Hatch of the bars of a flagged case.
 FLAG_HATCH = "////"
+#: One letter per flag, printed above a flagged bar (short: a bar group stays legible).
+FLAG_CODES = {"unhealthy": "U", "not steady": "S", "frozen": "F", "locked": "L"}
+
+
+def flag_code(flags) -> str:
+    """The flags as letters (:data:`FLAG_CODES`; an unknown flag keeps its name)."""
+    return "".join(FLAG_CODES.get(f, f"[{f}]") for f in sorted(flags or [], key=lambda f: list(FLAG_CODES).index(f)
+                                                                   if f in FLAG_CODES else 99))
 
 
 def _flag_list(value) -> list[str]:
@@ -223,6 +233,12 @@ def _flags_of(table: pd.DataFrame, crit: dict | None) -> list[str]:
 
 
 def _flagged(label: str, flags: list[str]) -> str:
+    """A legend label with its flags coded (a bar figure explains the letters in its legend)."""
+    return f"{label} [{flag_code(flags)}]" if flags else label
+
+
+def _flagged_names(label: str, flags: list[str]) -> str:
+    """A legend label with its flags named (a figure without the letters' key)."""
     return f"{label} [flagged: {', '.join(flags)}]" if flags else label
 
 
@@ -256,7 +272,8 @@ def _bars(ax, groups: list[str], series: list[tuple], width=None, hatches=None):
     n = len(series)
     width = width or 0.8 / max(n, 1)
     x0 = np.arange(len(groups))
-    pending, flag_text = [], []
+    at_bar = len(groups) <= 4  # a few groups: each flagged bar's code above it; a histogram: in the legend
+    pending, flag_text, seen = [], [], []
     for k, (label, vals, errs, marks, *rest) in enumerate(series):
         flags = rest[0] if rest else [None] * len(groups)
         xs = x0 + (k - (n - 1) / 2) * width
@@ -264,7 +281,10 @@ def _bars(ax, groups: list[str], series: list[tuple], width=None, hatches=None):
         up = yerr[-1] if yerr.ndim == 2 else yerr
         bad = [m for m in marks if m and m != "not in study"]
         lab = label if not bad else f"{label} ({', '.join(sorted(set(bad)))})"
-        lab = _flagged(lab, list(dict.fromkeys(f for fl in flags if fl for f in fl)))
+        every = list(dict.fromkeys(f for fl in flags if fl for f in fl))
+        seen += every
+        if not at_bar:
+            lab = _flagged(lab, every)
         bars = ax.bar(xs, np.nan_to_num(vals), width * 0.92, yerr=yerr, color=f"C{k}", label=lab,
                       hatch=(hatches[k] if hatches else None), edgecolor="k", linewidth=0.4,
                       error_kw={"elinewidth": 0.8})
@@ -272,8 +292,8 @@ def _bars(ax, groups: list[str], series: list[tuple], width=None, hatches=None):
             if fl:
                 patch.set_hatch(FLAG_HATCH)
         pending += [(x, m) for x, m in zip(xs, marks) if m]
-        flag_text += [(x, y, ", ".join(fl)) for x, y, fl in zip(xs, np.nan_to_num(vals) + up, flags)
-                      if fl and len(groups) > 1 and len(set(map(tuple, (f or () for f in flags)))) > 1]
+        if at_bar:
+            flag_text += [(x, y, flag_code(fl)) for x, y, fl in zip(xs, np.nan_to_num(vals) + up, flags) if fl]
     ax.set_xticks(x0, groups)
     tops = [np.nanmax(np.where(np.isfinite(np.asarray(e)[-1] if np.ndim(e) == 2 else e),
                                v + (np.asarray(e)[-1] if np.ndim(e) == 2 else e), v))
@@ -282,9 +302,12 @@ def _bars(ax, groups: list[str], series: list[tuple], width=None, hatches=None):
     ax.set_ylim(0.0, 1.3 * top if top > 0 else 1.0)  # head-room for the legend
     for x, m in pending:
         _mark(ax, x, m)
-    for x, y, text in flag_text:  # flags that differ between the bars of one series: named at the bar
-        ax.text(x, y + 0.02 * ax.get_ylim()[1], text, rotation=90, ha="center", va="bottom", fontsize=6.5,
-                color="0.25", style="italic")
+    for x, y, text in flag_text:
+        ax.text(x, y + 0.01 * ax.get_ylim()[1], text, ha="center", va="bottom", fontsize=6, color="0.2")
+    if seen:  # one legend entry explains the hatch and the letters
+        seen = list(dict.fromkeys(seen))
+        ax.bar([np.nan], [np.nan], color="white", edgecolor="k", linewidth=0.4, hatch=FLAG_HATCH,
+               label="flagged: " + ", ".join(f"{flag_code([f])} {f}" for f in seen))
 
 
 # ----------------------------------------------------------------------------------------------
@@ -301,7 +324,9 @@ def omega_bars(table, series: list[tuple[str, dict]], stem: Path, title: str = "
     data = []
     for label, crit in series:
         v, e, m = _omega_of(t, crit)
-        data.append((label, v, e, [m] * 3, [_flags_of(t, crit) if m is None else None] * 3))
+        rows = _select(t, **crit) if crit is not None else pd.DataFrame()
+        case = f": {rows['case'].iloc[0]}" if len(rows) and "case" in rows else ""  # each case named one way
+        data.append((label + case, v, e, [m] * 3, [_flags_of(t, crit) if m is None else None] * 3))
     _bars(ax, list(AXIS_LABELS), data)
     ax.set_xlabel("rotation axis (lab frame; z = pipe axis)")
     ax.set_ylabel(OMEGA_YLABEL)
@@ -478,7 +503,7 @@ def _case_hist(ax, table: pd.DataFrame, kind: str, crit: dict, hi: float, color:
     top = max(top, _reference(ax, kind, edges, x, 0.45))
     ax.set_xticks(x, _bin_labels(edges))
     ax.tick_params(axis="x", labelsize=6.5, rotation=45)
-    return top, ", ".join(flags)
+    return top, flag_code(flags)
 
 
 def cube_orientation(table, stem: Path, title: str = "", concentration: float = 0.30,
@@ -495,13 +520,15 @@ def cube_orientation(table, stem: Path, title: str = "", concentration: float = 
     cols = [(kind, hi, xlabel, re) for kind, hi, xlabel in kinds for re in reynolds]
     fig, axs = plt.subplots(len(sizes), len(cols), figsize=(2.7 * len(cols), 2.3 * len(sizes) + 0.6),
                             squeeze=False)
+    coded = set()
     for i, size in enumerate(sizes):
         tops = []
         for j, (kind, hi, xlabel, re) in enumerate(cols):
             ax = axs[i, j]
             top, flags = _case_hist(ax, t, kind, _sel("cube", size, concentration, re), hi, "C0")
+            coded.update(flags)
             tops.append(top)
-            ax.set_title(f"cube {size}, Re {re:g}" + (f"\n[flagged: {flags}]" if flags else ""), fontsize=8,
+            ax.set_title(f"cube {size}, Re {re:g}" + (f" [{flags}]" if flags else ""), fontsize=8,
                          color="C3" if flags else "k")
             if i == len(sizes) - 1:
                 ax.set_xlabel(xlabel, fontsize=8)
@@ -514,6 +541,9 @@ def cube_orientation(table, stem: Path, title: str = "", concentration: float = 
             if lab not in labels:
                 handles.append(h)
                 labels.append(lab)
+    if coded:  # the letters of the panel titles, once
+        handles.append(plt.Rectangle((0, 0), 1, 1, facecolor="white", edgecolor="k", hatch=FLAG_HATCH))
+        labels.append("flagged: " + ", ".join(f"{c} {f}" for f, c in FLAG_CODES.items() if c in coded))
     fig.legend(handles, labels, loc="lower center", ncol=len(labels), fontsize=7.5, bbox_to_anchor=(0.5, 0.0))
     if title:
         fig.suptitle(f"{title}; {concentration:.0%} concentration", fontsize=9)
@@ -623,9 +653,9 @@ def make_figures(fid_dir: Path, fidelity: str, cases: dict | None = None) -> lis
         if not cfg.get("particles") and np.isclose(float(cfg.get("reynolds", np.nan)), 26.0):
             flow_case = name
             break
-    profiles = {_flagged("no particles, Re 26", flags.get(flow_case, [])):
+    profiles = {_flagged_names("no particles, Re 26", flags.get(flow_case, [])):
                     fid_dir / "cases" / flow_case / "profile.csv",
-                _flagged("cylinders 16x16 mm, 30 %, Re 26", flags.get(cyl_case, [])):
+                _flagged_names("cylinders 16x16 mm, 30 %, Re 26", flags.get(cyl_case, [])):
                     (fid_dir / "cases" / cyl_case / "profile.csv") if cyl_case else None}
     out += velocity_profiles(profiles, figs / "fig10_profiles", title=f"Fig. 10: axial velocity profiles ({lvl})",
                              parabola="first")

@@ -10,10 +10,11 @@ directory ``results/<fid>/``. The template receives data only: every number in t
 from the results (or derived from ``config.yaml`` through :func:`lbmpipe.units.derive`); a section
 whose input is absent says ``not built at this level: <file> missing``. It is laid out as a paper:
 an abstract with the verdict in numbers, the method (the key equations as displayed maths beside a
-short excerpt of their code, ``equations.KEY_EQUATIONS``; Fig. 3 as one gallery of the snapshots), one
-section per figure of the paper (what the paper says, what we see, why: the measured diagnostics of
-its cases), the claims in one line each, the limitations and the run health; the long tables
-follow as appendices (:func:`main_text` is everything before them). The web page beside it
+short excerpt of their code, ``equations.KEY_EQUATIONS``; Fig. 3 as four snapshots), one
+section per figure of the paper (what the paper says, what we see, why: a physical reading of the
+diagnostics of its cases, :mod:`lbmpipe.reproduction.findings`), the claims in one line each, the
+limitations and the run health; the long tables follow as appendices (:func:`main_text` is
+everything before them; at most :data:`MAIN_WORDS` and :data:`TOTAL_WORDS` words, a test keeps it). The web page beside it
 (``.html``: maths as MathML, contents, anchors per claim and figure) is :mod:`lbmpipe.reproduction.webpage`'s.
 """
 
@@ -26,20 +27,22 @@ from pathlib import Path
 import jinja2
 import pandas as pd
 
+from ..scene import Numerics
 from . import health
 from .robustness import robustness_section
 
 from .unpackable import read_summary
 from .document_sections import (DECISIONS, PAPER_CAPTIONS, case_rows, convergence_section, figure_entries, fmt,
-                                health_section, method_comparison_section, method_section, our_caption,
-                                parameter_rows, read_table, runtime_section, stationarity_section, study_section,
+                                health_section, method_comparison_section, method_section,
+                                parameter_rows, read_table, runtime_section, stationarity_section,
                                 table_of)
 from .equations import check_links, equation_index, key_equations, other_equations, relative_href
 from .claim_rules import find_case
 from .claims import REFERENCE_DESC
 from .figures import figure_cases
 from .profile_error import read_profile_error
-from .snapshots import snapshot_gallery
+from . import findings
+from .snapshots import FIG3_CAPTION, fig3_cases, snapshot_gallery
 from .webpage import markdown_to_html
 
 
@@ -57,6 +60,10 @@ FIGURE_TITLES: dict[str, str] = {
     "6": "Reynolds number and cube rotation", "7": "particle shape and size", "8": "cylinder orientation",
     "9": "cube orientation", "10": "velocity profile",
 }
+
+
+#: Word limits of the document (:func:`word_count`): the main text (:func:`main_text`) and the whole.
+MAIN_WORDS, TOTAL_WORDS = 4000, 10000
 
 
 def main_text(md: str) -> str:
@@ -143,6 +150,13 @@ def _method_cell(r: dict) -> str:
     return "none: the claim's inputs are missing under one of the methods (packing 1)"
 
 
+def _method_short(r: dict) -> str:
+    """:func:`_method_cell` in the few words of a table cell."""
+    same = str(r.get("same_under_both_methods"))
+    acc, paper = r.get("verdict_accurate_method_seed1"), r.get("verdict_paper_method_seed1")
+    return {"yes": f"{acc} (as the paper's)", "no": f"{acc} (paper's: {paper})"}.get(same, "–")
+
+
 def _text(r: dict, key: str, default: str = "") -> str:
     v = r.get(key)
     return default if v is None or (isinstance(v, float) and math.isnan(v)) else str(v)
@@ -167,9 +181,12 @@ def claims_summary(claims) -> list[dict]:
                      # with the systematic term; then under the robustness controls (issue 47), where there are any
                      "robust": _text(r, "robust", "–") + (f"; under the controls: {_text(r, 'robust_under_controls')}"
                                                           if _text(r, "robust_under_controls") else ""),
+                     "systematic": _text(r, "verdict_with_systematic", "–"),
+                     "controls": _text(r, "robust_under_controls", "–"),
                      "number": number, "reason": reason,
                      # the verdict under the accurate method (seed 1), where a level compares with this one
-                     "method": _method_cell(r) if "same_under_both_methods" in r else None})
+                     "method": _method_cell(r) if "same_under_both_methods" in r else None,
+                     "method_short": _method_short(r) if "same_under_both_methods" in r else None})
     return rows
 
 
@@ -229,7 +246,15 @@ def _figure_case_names(key: str, av, config: dict) -> list[str]:
     return list(dict.fromkeys(names))
 
 
-def _omega_line(row: dict) -> str:
+def _not_completed_line(row: dict, health_by_case: dict) -> str:
+    status = (health_by_case.get(row["case"]) or {}).get("status", row.get("status"))
+    return f"`{row['case']}`: {status}; no bars, and left out of the claims"
+
+
+def _omega_line(row: dict) -> str | None:
+    """A completed case's bars in numbers; None for a case that did not complete (the figure draws no bar)."""
+    if str(row.get("status")) != "completed":
+        return None
     return (f"`{row['case']}` |Ω| x, y, z = {fmt(row['omega_x'])} ± {fmt(row['ci_x'])}, "
             f"{fmt(row['omega_y'])} ± {fmt(row['ci_y'])}, {fmt(row['omega_z'])} ± {fmt(row['ci_z'])} rad/s")
 
@@ -256,6 +281,9 @@ def figure_sections(fid_dir: Path, out_dir: Path, config: dict, claims_rows: lis
         numbers = []
         if key in ("4", "5", "6") and av is not None:
             numbers = [_omega_line(r) for r in av[av["case"].isin(names)].to_dict("records")]
+            # a case that did not complete is named as the figure and the claims treat it: no bar, left out
+            numbers = [n if n is not None else _not_completed_line(r, health_by_case)
+                       for n, r in zip(numbers, av[av["case"].isin(names)].to_dict("records"))]
         elif key == "10":
             numbers = [f"`{n}`: relative L2 difference from the Hagen-Poiseuille parabola "
                        f"{fmt(read_profile_error(fid_dir / 'cases' / n / 'profile.csv'))}"
@@ -277,9 +305,11 @@ def figure_sections(fid_dir: Path, out_dir: Path, config: dict, claims_rows: lis
         avg = [a for a in avg if math.isfinite(a)]
         out.append({
             "key": key, "title": title, "figures": figs,
+            "why": findings.why(names, health_rows, fid_dir, config,
+                                "orientation" if key in ("8", "9") else "profile" if key == "10" else "rotation"),
             "paper_caption": PAPER_CAPTIONS.get(key, PAPER_CAPTIONS.get(key + "a", "")),
             "claims": claims_here, "numbers": numbers, "cases": names,
-            "why": why, "n_clean": fmt(sum(1 for n in names if n in health_by_case) - len(why)),
+            "flagged": why, "n_clean": fmt(sum(1 for n in names if n in health_by_case) - len(why)),
             "not_computed": fmt(len(not_computed)) if not_computed else None,
             "avg": (f"{fmt(min(avg))}–{fmt(max(avg))}" if min(avg) != max(avg) else fmt(avg[0])) if avg else None,
             "diagnosed": [c for c in claims_here if "likely:" in c["reason"]],
@@ -330,8 +360,29 @@ def build_context(repo_root: Path, fid_dir: Path, fidelity: str, config: dict, o
     claim_rows = claims_summary(claims) if claims is not None else []
     particle_cases = [n for n, c in (config.get("cases") or {}).items() if (c or {}).get("particles")]
 
-    gallery = snapshot_gallery(fid_dir, particle_cases)  # Fig. 3: one tiled image of the snapshots
+    shown = fig3_cases(config, fid_dir)
+    gallery = snapshot_gallery(fid_dir, shown)  # Fig. 3: four snapshots, dilute and dense, cylinders and cubes
+    health_rows = health_ctx["rows"]
+    n_flagged = sum(1 for r in health_rows if r["flags"] not in ("none", ""))
+    flag_counts = {f: sum(f in str(r["flags"]) for r in health_rows) for f in findings.FLAG_MEANING}
     return {
+        "findings": findings.claim_findings(fid_dir),
+        "n_unhealthy": fmt(flag_counts["unhealthy"]),
+        "flag_meanings": findings.flag_meanings(),
+        "physics": findings.physical_results(fid_dir),
+        "corrections": findings.correction_sizes(fid_dir, config),
+        "density_floor": fmt(Numerics.model_fields["density_floor"].default),  # the scenes' default
+        "unpackable": [f"`{c['case']}` ({c['achieved']} % reached)" for c in case_rows(config, fid_dir)
+                       if c["status"] == "unpackable"],
+        "health_counts": (f"{n_flagged} of {len(health_rows)} cases carry a flag: "
+                          + ", ".join(f"{n} {f}" for f, n in flag_counts.items() if n) + "; "
+                          + ", ".join(f"{n} {s}" for s, n in sorted(
+                              pd.Series([str(r['status']).split(' (')[0] for r in health_rows]).value_counts().items()))
+                          + "."),
+        "claim_lines": findings.claim_lines(fid_dir, relative_href(fid_dir / "claims.csv", out_dir)),
+        "claims_href": relative_href(fid_dir / "claims.csv", out_dir),
+        "benchmarks_href": relative_href(repo_root.resolve() / "benchmarks" / "README.md", out_dir)
+                           + "#run-cost-per-processor",
         "abstract": abstract_section(fid_dir, fidelity, config, claims, params, case_data, health_ctx["rows"]),
         "key_equations": key_equations(repo_root, out_dir, equation_index(repo_root / "lbmpipe")),
         "other_equations": other_equations(groups),
@@ -339,7 +390,7 @@ def build_context(repo_root: Path, fid_dir: Path, fidelity: str, config: dict, o
         "claims_summary": claim_rows,
         "health_summary": health_summary_table(fid_dir, config, health_ctx["rows"], case_data),
         "gallery": relative_href(gallery, out_dir) if gallery else None,
-        "gallery_caption": our_caption("fig3_snapshot")[0],
+        "gallery_caption": FIG3_CAPTION.format(cases=", ".join(f"`{c}`" for c in shown)),
         "level_parameters": [p for p in params if p["fidelity"] == fidelity],
         "fidelity": fidelity,
         "fid_dir": _rel_to(fid_dir, repo_root),
@@ -350,23 +401,41 @@ def build_context(repo_root: Path, fid_dir: Path, fidelity: str, config: dict, o
         "level_run_md": ", ".join(f"`{k}` = {fmt(v)}" for k, v in (fid_cfg.get("run") or {}).items()) or "–",
         "equation_groups": groups,
         "uncited_equations": uncited,
-        "parameters": params,
+        "parameters": [p for p in params if p["fidelity"] in _related_levels(config, fidelity)],
         "parameter_errors": param_errors,
         "cases": case_rows(config, fid_dir),
         "figures": figure_entries(fid_dir, out_dir),
         "decisions": decisions,
         "claims": claims_ctx,
-        "stability": table_of(stability) if stability is not None else None,
-        "study": study_section(study_dir, out_dir),
+        "stability": table_of(stability, STABILITY_COLUMNS) if stability is not None else None,
         "study_level": study_level(config, fidelity),
         "health": health_ctx,
-        "runtime": runtime_section(fid_dir, fidelity),
+        "runtime": _current_levels(runtime_section(fid_dir, fidelity), config, fidelity, fid_dir),
         "method": method_comparison_section(fid_dir, fidelity, config, out_dir),
         "convergence": convergence_section(fid_dir, fidelity, config, out_dir),
         "robustness": robustness_section(fid_dir, out_dir),
         "stationarity": stationarity_section(fid_dir),
         "missing": lambda rel: f"not built at this level: `{_rel_to(fid_dir, repo_root)}/{rel}` missing",
     }
+
+
+#: The columns of the stability suite the document shows (the file has them all).
+STABILITY_COLUMNS = ["case", "description", "status", "failed_step", "max_u_over_cs", "rho_min", "rho_max",
+                     "mass_corrected_rel", "floor_mass_rel"]
+
+
+def _related_levels(config: dict, fidelity: str) -> set[str]:
+    """This level and the levels built on it: its controls, its convergence levels, the level
+    comparing its method with it."""
+    fids = config.get("fidelities") or {}
+    return {fidelity} | {k for k, v in fids.items() if fidelity in
+                         ((v or {}).get("control_of"), (v or {}).get("convergence_of"), (v or {}).get("compare_with"))}
+
+
+def _current_levels(runtime: dict, config: dict, fidelity: str, fid_dir: Path) -> dict:
+    """``runtime`` with its per-level rows cut to :func:`_related_levels` (and the results folder's own)."""
+    mine = _related_levels(config, fidelity) | {Path(fid_dir).name}
+    return {**runtime, "levels": [lv for lv in runtime["levels"] if lv["level"] in mine]}
 
 
 def study_level(config: dict, fidelity: str) -> str:

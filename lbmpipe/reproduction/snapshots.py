@@ -1,6 +1,7 @@
 """Fig. 3-like snapshots: the particles of a case's last sample drawn in 3-D inside the pipe
-outline, one PNG per particle case (:func:`snapshots`), and a gallery tiling them for the
-document (:func:`snapshot_gallery`)."""
+outline, with a scale bar in mm and the flow direction, one PNG per particle case
+(:func:`snapshots`), and the document's Fig. 3 (:func:`snapshot_gallery`): four of them side by
+side, a dilute and a dense case of cylinders and of cubes (:func:`fig3_cases`)."""
 
 from __future__ import annotations
 
@@ -39,6 +40,29 @@ def _cube_faces(edge: float) -> list[np.ndarray]:
             sq[:, v] = np.array([-a, -a, a, a])
             faces.append(sq)
     return [np.array(faces)]  # (6, 4, 3)
+
+
+#: Length of the scale bar drawn beside the pipe (mm).
+SCALE_BAR_MM = 20.0
+
+#: The document's caption of Fig. 3 (``cases``: the four cases shown, by name).
+FIG3_CAPTION = ("Particles at the last sample of a run, in their position and orientation inside the 50 mm pipe: "
+                "{cases} (packing 1 where a case has several). The bar beside each pipe is "
+                f"{SCALE_BAR_MM:g} mm; the arrow is the flow direction (+z); colour: the angle between the pipe axis and "
+                "the cylinder axis (nearest cube axis for cubes).")
+
+
+def _scale_and_flow(ax, R: float, L: float) -> None:
+    """A scale bar of :data:`SCALE_BAR_MM` along the pipe axis (z is drawn nearly unforeshortened) on
+    one side of the pipe, and an arrow in the flow direction (+z) on the other."""
+    x0, z0 = -R - 6.0, 4.0
+    ax.plot([x0, x0], [0.0, 0.0], [z0, z0 + SCALE_BAR_MM], color="k", lw=2.0)
+    for z in (z0, z0 + SCALE_BAR_MM):
+        ax.plot([x0 - 2.0, x0 + 2.0], [0.0, 0.0], [z, z], color="k", lw=1.0)
+    ax.text(x0 - 3.0, 0.0, z0 + 0.5 * SCALE_BAR_MM, f"{SCALE_BAR_MM:g} mm", fontsize=7, ha="right", va="center",
+            zdir=None)
+    ax.quiver(R + 6.0, 0.0, 0.55 * L, 0.0, 0.0, 0.3 * L, color="C3", lw=1.6, arrow_length_ratio=0.25)
+    ax.text(R + 8.0, 0.0, 0.5 * L, "flow", color="C3", fontsize=7, ha="left", va="top")
 
 
 def snapshot(case_dir: Path, stem: Path, title: str = "", case: dict | None = None) -> Path:
@@ -115,6 +139,7 @@ def snapshot_figure(case_dir: Path, title: str = "", case: dict | None = None):
         colour_bar = (plt.cm.ScalarMappable(cmap=cmap, norm=plt.Normalize(0, vmax)),
                       "cylinder axis to pipe axis (deg)" if is_cyl.all() else "nearest cube axis to pipe axis (deg)")
         title = (title + "\n" if title else "") + f"t = {t_last:.2f} s, {len(last)} particles"
+    _scale_and_flow(ax, R, L)
     if note:
         ax.text(0.0, 0.0, 0.5 * L, note, ha="center", fontsize=12, color="0.3", style="italic")
     ax.set_xlim(-R, R)
@@ -163,11 +188,43 @@ def snapshots(fid_dir: Path, cases: dict, fidelity: str | None = None, run: str 
     return out
 
 
-def snapshot_gallery(fid_dir: Path, cases, out_png: Path | None = None, ncols: int = 6) -> Path | None:
-    """One image tiling the snapshots ``fid_dir/figures/fig3_<case>.png`` of ``cases`` (names, in
-    order; those without a PNG are left out), each titled with its case name, into ``out_png``
-    (default ``fid_dir/figures/fig3_gallery.png``). Returns the path, or None when no snapshot
-    exists (nothing is written)."""
+def fig3_cases(config: dict, fid_dir: Path | None = None) -> list[str]:
+    """The four cases of the document's Fig. 3: for cylinders, then cubes, the smallest size that was
+    run at a dilute and a dense concentration (the lowest and the highest of that size, lowest Reynolds
+    number, collisions on), those two. A case counts as run when its summary says ``completed`` (any
+    case of the config when ``fid_dir`` is None)."""
+    cases = config.get("cases") or {}
+
+    def ran(name):
+        if fid_dir is None:
+            return True
+        return (read_summary(Path(fid_dir) / "cases" / name, cases[name]) or {}).get("status") == "completed"
+
+    out = []
+    for shape in ("cylinder", "cube"):
+        rows = [(n, c) for n, c in cases.items() if ((c or {}).get("particles") or {}).get("shape") == shape
+                and (c or {}).get("collisions") is not False and ran(n)]
+        if not rows:
+            continue
+        re_min = min(float(c["reynolds"]) for _, c in rows)
+        rows = [(n, c) for n, c in rows if float(c["reynolds"]) == re_min]
+        by_size: dict[tuple, list] = {}
+        for n, c in rows:
+            p = c["particles"]
+            size = (p.get("edge_mm") or 0.0, p.get("diameter_mm") or 0.0, p.get("length_mm") or 0.0)
+            by_size.setdefault(size, []).append((float(p.get("concentration", 0.0)), n))
+        sizes = [k for k in sorted(by_size) if len({c for c, _ in by_size[k]}) > 1] or sorted(by_size)
+        pick = sorted(by_size[sizes[0]])
+        out += list(dict.fromkeys([pick[0][1], pick[-1][1]]))
+    return out
+
+
+def snapshot_gallery(fid_dir: Path, cases, out_png: Path | None = None, ncols: int = 4) -> Path | None:
+    """The document's Fig. 3: the snapshots ``fid_dir/figures/fig3_<case>.png`` of ``cases`` (names,
+    in order, :func:`fig3_cases`; those without a PNG are left out) side by side, ``ncols`` to a row,
+    each titled with its case name, into ``out_png`` (default ``fid_dir/figures/fig3_gallery.png``, the
+    name the pipeline's ``paper`` rule expects). Returns the path, or None when no snapshot exists
+    (nothing is written)."""
     fig_dir = Path(fid_dir) / "figures"
     found = [(c, fig_dir / f"fig3_{c}.png") for c in cases]
     found = [(c, p) for c, p in found if p.is_file()]
@@ -176,14 +233,16 @@ def snapshot_gallery(fid_dir: Path, cases, out_png: Path | None = None, ncols: i
     out_png = Path(out_png) if out_png is not None else fig_dir / "fig3_gallery.png"
     ncols = max(1, min(ncols, len(found)))
     nrows = -(-len(found) // ncols)
-    fig, axs = plt.subplots(nrows, ncols, figsize=(2.2 * ncols, 2.35 * nrows), squeeze=False)
+    images = [plt.imread(p) for _, p in found]
+    aspect = max(im.shape[0] / im.shape[1] for im in images)
+    fig, axs = plt.subplots(nrows, ncols, figsize=(3.2 * ncols, 3.2 * aspect * nrows + 0.3), squeeze=False)
     for ax in axs.flat:
         ax.axis("off")
-    for ax, (case, png) in zip(axs.flat, found):
-        ax.imshow(plt.imread(png))
-        ax.set_title(case, fontsize=7)
+    for ax, (case, _), im in zip(axs.flat, found, images):
+        ax.imshow(im)
+        ax.set_title(case, fontsize=10)
     fig.tight_layout(pad=0.3)
     out_png.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(out_png, dpi=120)
+    fig.savefig(out_png, dpi=110)
     plt.close(fig)
     return out_png
