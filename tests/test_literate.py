@@ -138,9 +138,12 @@ def test_document_numbers_come_from_the_results_and_the_derived_lattice(document
     text = out.read_text()
     fid = config["fidelities"]["paper"]
     params = derive(Scene.model_validate(case_scene("flow_re26", {"reynolds": 26}, "paper", fid)))
-    row = next(line for line in text.splitlines() if line.startswith("| **paper** | 26 |"))
-    assert f"| {document_sections.fmt(params.tau)} |" in row and f"| {document_sections.fmt(params.mach_max)} |" in row
-    assert f"| {document_sections.fmt(params.n_steps)} |" in row
+    # one row per level, the Reynolds numbers' values joined Re 9.4/26: Re 26's is the last of each
+    row = next(line for line in text.splitlines() if line.startswith("| **paper** |"))
+    cells = [c.strip() for c in row.strip("| ").split("|")]
+    assert cells[4].split("/")[-1] == document_sections.fmt(params.tau)
+    assert cells[5].split("/")[-1] == document_sections.fmt(params.mach_max)
+    assert cells[7].split("/")[-1] == document_sections.fmt(params.n_steps)
     # runtime: 7654 s per case from runtime.csv, reported in hours and against the paper's 24 h
     assert document_sections.fmt(7654.0 / 3600) in text and document_sections.fmt(7654.0 / 3600 / 24.0) in text
     verdicts = pd.read_csv(fid_dir / "claims.csv")["verdict"]
@@ -492,13 +495,20 @@ def test_claim_findings_render_the_robustness_tables_strings_pending_included(tm
                   "verdict": ["reproduced", "contradicted", "reproduced"]}).to_csv(fid / "claims.csv", index=False)
     pd.DataFrame({"claim": [1, 2, 3], "under X": ["reproduced (holds; baseline reproduced)", "not run",
                                                   "inconclusive (changes; baseline reproduced)"],
+                  "under Y": ["reproduced (partly run (holds on the runs present); baseline reproduced)",
+                              " (partly run (no comparison on the runs present); baseline contradicted)",
+                              "inconclusive (partly run (changes on the runs present); baseline reproduced)"],
                   "robust_under_controls": ["yes", "pending: X not (fully) run", "no: changes under X"]}
                  ).to_csv(fid / "tables" / "robustness.csv", index=False)
     f = findings.claim_findings(fid)
     assert f["verdicts"] == "reproduced: claims [1](#claim-1), [3](#claim-3); contradicted: claims [2](#claim-2)"
     assert f["contradicted"] == 'claim 2 ("b")'
-    assert f["robustness"]["by_status"] == "yes: [1](#claim-1); pending: [2](#claim-2); no: [3](#claim-3)"
-    assert f["robustness"]["per_control"] == "under X claims [1](#claim-1) hold and [3](#claim-3) change"
+    assert f["robustness"]["by_status"] == ("robust (holds under every control): [1](#claim-1); pending (a control "
+                                            "not fully run): [2](#claim-2); changed by a control: [3](#claim-3)")
+    # a partly run control's differences on its runs present are pending, not changes
+    assert f["robustness"]["per_control"] == ("under X claims [1](#claim-1) hold and [3](#claim-3) change; Y partly run: "
+                                              "on its runs present claims [1](#claim-1) agree and [3](#claim-3) differ "
+                                              "(pending)")
 
 
 def test_why_reads_the_flags_physically_with_the_worst_value_not_a_list_of_seeds(tmp_path):

@@ -59,7 +59,7 @@ def test_a_partly_run_control_names_its_missing_runs_and_keeps_the_claim_pending
     rows = R.control_rows(base, base, "reference", "b", done=["c/seed1"], missing=["c/seed2", "c/seed3"])
     assert rows["status"].iloc[0] == "partly run (holds on the runs present)"
     assert rows["missing"].iloc[0] == "c/seed2; c/seed3"
-    assert R.robust_column({1: "reproduced"}, rows)[1] == "pending: reference not (fully) run"
+    assert R.robust_column({1: "reproduced"}, rows)[1] == "pending: reference"
 
 
 def test_a_partly_run_control_without_the_claims_pair_is_pending_and_its_change_on_few_runs_is_not_a_change():
@@ -74,7 +74,7 @@ def test_a_partly_run_control_without_the_claims_pair_is_pending_and_its_change_
                                     "partly run (changes on the runs present)"]
     assert list(rows["verdict"]) == ["", "reproduced"]
     robust = R.robust_column({1: "reproduced", 2: "contradicted"}, rows)
-    assert robust == {1: "pending: Ma/2 not (fully) run", 2: "pending: Ma/2 not (fully) run"}
+    assert robust == {1: "pending: Ma/2", 2: "pending: Ma/2"}
 
 
 def test_only_cases_with_every_packing_present_enter_a_partly_run_controls_comparison():

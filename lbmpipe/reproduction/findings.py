@@ -87,16 +87,25 @@ def claim_findings(fid_dir: Path) -> dict | None:
     per_control = []
     for c in controls:
         cells = rob[c].astype(str)
-        holds = [fmt(n) for n, v in zip(rob["claim"], cells) if "(holds" in v]
-        changes = [fmt(n) for n, v in zip(rob["claim"], cells) if "(changes" in v]
+
+        def having(mark, cells=cells):
+            return [fmt(n) for n, v in zip(rob["claim"], cells) if mark in v]
+        holds, changes = having("(holds;"), having("(changes;")
+        # a partly run control: the verdicts on its runs present, pending until it is complete
+        agree, differ = having("(partly run (holds"), having("(partly run (changes")
         status = sorted({v for v in cells if not v.startswith("not covered") and "(" not in v})
         name = c[len("under "):]
         if holds or changes:
             per_control.append(f"under {name} claims {_links(holds) or 'none'} hold"
                                + (f" and {_links(changes)} change" if changes else ""))
+        elif agree or differ:
+            per_control.append(f"{name} partly run: on its runs present claims {_links(agree) or 'none'} agree"
+                               + (f" and {_links(differ)} differ" if differ else "") + " (pending)")
         elif status:
             per_control.append(f"{name}: {', '.join(status)}")
-    out["robustness"] = {"by_status": "; ".join(f"{k}: {_links(v)}" for k, v in lead.items()),
+    words = {"yes": "robust (holds under every control)", "no": "changed by a control",
+             "pending": "pending (a control not fully run)", "not covered": "not covered by any control"}
+    out["robustness"] = {"by_status": "; ".join(f"{words.get(k, k)}: {_links(v)}" for k, v in lead.items()),
                          "per_control": "; ".join(per_control)}
     return out
 

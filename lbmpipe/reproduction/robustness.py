@@ -226,7 +226,7 @@ def robust_column(base_verdicts: dict[int, str], controls: pd.DataFrame) -> dict
         if changed:
             out[k] = "no: changes under " + ", ".join(changed) + (f" (pending: {', '.join(pending)})" if pending else "")
         elif pending:
-            out[k] = "pending: " + ", ".join(pending) + " not (fully) run"
+            out[k] = "pending: " + ", ".join(pending)  # the controls not (fully) run
         else:
             out[k] = "yes" if verdict != "inconclusive" else "yes (inconclusive under every control)"
     return out
