@@ -383,6 +383,7 @@ def build_context(repo_root: Path, fid_dir: Path, fidelity: str, config: dict, o
         "claims_href": relative_href(fid_dir / "claims.csv", out_dir),
         "benchmarks_href": relative_href(repo_root.resolve() / "benchmarks" / "README.md", out_dir)
                            + "#run-cost-per-processor",
+        "mass_href": relative_href(repo_root.resolve() / "benchmarks" / "README.md", out_dir) + "#mass-validation-item-5",
         "abstract": abstract_section(fid_dir, fidelity, config, claims, params, case_data, health_ctx["rows"]),
         "key_equations": key_equations(repo_root, out_dir, equation_index(repo_root / "lbmpipe")),
         "other_equations": other_equations(groups),
