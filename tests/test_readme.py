@@ -64,7 +64,10 @@ def _facts() -> dict[str, str]:
                                     f"{len(con)} contradicted ({ids(con)[:2]}")
     facts["claims.csv inconclusive"] = f"{len(inc)} inconclusive ({ids(inc)})"
     clean = _listed(claims, "verdict_without_flagged", "reproduced")
-    facts["verdict_without_flagged"] = f"without the flagged cases only claim {ids(clean)} stays reproduced"
+    facts["verdict_without_flagged"] = (f"without the flagged cases only claim {ids(clean)} stays reproduced"
+                                        if len(clean) == 1 else
+                                        f"without the flagged cases only claims {' and '.join(map(str, clean))} "
+                                        "stay reproduced")
     differ = _listed(claims, "same_under_both_methods", "no")
     facts["same_under_both_methods"] = f"claims {' and '.join(map(str, differ))} change with the method"
     # the contradicted claim is the cube-cylinder comparison the README names
@@ -105,9 +108,9 @@ def _facts() -> dict[str, str]:
                                  "(Re 26) of Hagen-Poiseuille")
     rt = pd.read_csv(LEVEL / "tables" / "runtime.csv")
     n = rt["status"].value_counts()
-    facts["runs"] = (f"{n.get('completed', 0)} runs completed, {n.get('unstable', 0)} ended unstable, "
-                     f"{n.get('not run', 0)} are not run (the dilute reference of claim 14)")
-    assert set(rt.loc[rt["status"] == "not run", "case"].str.split("/").str[0]) == {"cyl8x16_c2_re9.4"}
+    facts["runs"] = (f"{n.get('completed', 0)} runs completed, {n.get('unstable', 0)} ended unstable"
+                     + (f", {n.get('not run')} are not run (the dilute reference of claim 14)" if n.get("not run") else ""))
+    assert set(rt.loc[rt["status"] == "not run", "case"].str.split("/").str[0]) <= {"cyl8x16_c2_re9.4"}
     facts["time"] = (f"took {_g(rt['wall_s'].sum() / 3600, 3)} core-hours as measured (`wall_s` summed over "
                      f"`results/credible/tables/runtime.csv`), the longest {round(rt['wall_s'].max() / 60)} minutes")
 
