@@ -183,9 +183,10 @@ def control_rows(baseline: pd.DataFrame, control: pd.DataFrame, label: str, leve
 
 def cases_present(config: dict, level: str, done: list[str]) -> list[str]:
     """The level's cases whose every run is present."""
-    runs = level_runs(config, level)
-    return [c for c in level_cases(config, level)
-            if all(r in done for r in runs if split_run(r)[0] == c) and any(split_run(r)[0] == c for r in runs)]
+    runs: dict[str, list[str]] = {}
+    for r in level_runs(config, level):
+        runs.setdefault(split_run(r)[0], []).append(r)
+    return [c for c in level_cases(config, level) if c in runs and all(r in done for r in runs[c])]
 
 
 def control_verdicts(config: dict, base: str, root: Path) -> pd.DataFrame:

@@ -23,7 +23,7 @@ from lbmpipe.reproduction.cases import (case_scene, estimate_minutes, level_case
 from lbmpipe.reproduction.convergence import levels as convergence_levels
 from lbmpipe.reproduction.literate import study_level
 from lbmpipe.reproduction.methods import comparison_level
-from lbmpipe.reproduction.robustness import control_levels, unstable_levels
+from lbmpipe.reproduction.robustness import control_levels, run_status, runs_done, unstable_levels
 from lbmpipe.scene import Scene
 from lbmpipe.units import LatticeParams, derive
 
@@ -215,9 +215,9 @@ class Pipeline:
         return files
 
     def control_runs_present(self, level: str) -> list[str]:
-        """The runs of a control level whose summary is there (its production is run apart:
-        `snakemake controls`)."""
-        return [r for r in level_runs(self.config, level) if run_present(level, r)]
+        """The runs of a control level whose summary says how it ended (its production is run apart:
+        `snakemake controls`): the runs the robustness verdicts read (``robustness.runs_done``)."""
+        return runs_done(self.config, level, Path("results"))[0]
 
     def robustness_inputs(self, wildcards) -> list:
         # each control run present with its statistics (built here where missing: a run just copied
@@ -242,8 +242,7 @@ class Pipeline:
         rows = []
         for lvl in control_levels(self.config, wildcards.fidelity) + unstable_levels(self.config, wildcards.fidelity):
             for run in self.control_runs_present(lvl):
-                status = json.loads(Path("results", lvl, "cases", run, "summary.json").read_text()).get("status")
-                rows.append(f"{lvl}/{run}={status}")
+                rows.append(f"{lvl}/{run}={run_status(Path('results'), lvl, run)}")
         return "; ".join(rows)
 
     def claims_robustness(self, wildcards) -> dict:
