@@ -34,7 +34,8 @@ def restore(sim, state) -> None:
 
     sweep = sim.sweep
     name, rho_min, timers = sweep.name, sweep.rho_min, sim.timers
-    ckpt.restore(sim, *state)
+    arrays, meta = state
+    ckpt.restore(sim, arrays, json.loads(json.dumps(meta)))  # a copy: the effects' dicts change as they run
     sweep.name, sweep.rho_min, sim.timers = name, rho_min, timers
 
 
@@ -64,6 +65,15 @@ class Probe:
         self.collide = sim.effect(CollisionEffect)
         self.mass_corr = sim.effect(MassCorrection)
         self.control = next((e for e in sim.effects if hasattr(e, "f_ref")), None)
+        # the method's particle components: the link rule of the coupling (``surface.RULES``; the
+        # paper's Ladd coupling is half-way), the Galilean exchange, the lubrication effect
+        from lbmpipe.particles.coupling.surface import HALF_WAY, RULES
+
+        coupling = next((e for e in sim.effects if hasattr(e, "rule") and hasattr(e, "galilean")), None)
+        self.rule = int(coupling.rule) if coupling is not None else HALF_WAY
+        self.rule_name = {v: k for k, v in RULES.items()}[self.rule]
+        self.galilean = bool(coupling.galilean) if coupling is not None else False
+        self.lub = next((e for e in sim.effects if e.__class__.__name__ == "LubricationEffect"), None)
 
     # -- fields
     def owner(self) -> np.ndarray:
@@ -211,29 +221,115 @@ class Probe:
         return {"floor_mass": float(sweep.tally[0]), "floor_nodes": float(sweep.tally[1]),
                 "mass_corr": float(self.mass_corr.added) if self.mass_corr is not None else 0.0,
                 "locked": int(t.get("locked_bodies", 0)), "unresolved": int(t.get("unresolved", 0)),
-                "force_ratio": float(self.sim.force[2] / self.control.f_ref) if self.control is not None else float("nan")}
+                "force_ratio": float(self.sim.force[2] / self.control.f_ref) if self.control is not None else float("nan"),
+                # this step's: bodies the jam rule locked; the largest lubrication force on a body
+                # (lattice units) and the films with a force (NaN: no lubrication in the step)
+                "q_ratio": float(self.control.q / self.control.q_target) if self.control is not None else float("nan"),
+                "locked_now": int(self.collide.last.get("locked_bodies", 0)) if self.collide is not None else 0,
+                "lub_force_max": float(np.linalg.norm(self.lub.force, axis=1).max()) if self.lub is not None else float("nan"),
+                "lub_films": int(self.lub.counts.sum()) if self.lub is not None else -1}
 
-    def ladd_injection(self, step: int) -> np.ndarray:
-        """(n, 3): the staggered momentum Ladd's moving-wall term of Eq. (8) puts into the fluid in
-        the step from ``step`` (with the velocities the coupling has just set): per live link,
-        ``(-1)^(p(x)+step+1) 6 w_i rho0 (e_i . u_b) e_i`` at the fluid node x."""
+    def lub_force(self, ids) -> dict:
+        """|lubrication force| of the last step on the bodies ``ids`` (empty without lubrication)."""
+        if self.lub is None:
+            return {}
+        return {str(k): float(np.linalg.norm(self.lub.force[k])) for k in ids}
+
+    def link_terms(self, f, step: int, node=None) -> dict:
+        """What the ghost slots of the free particles' live links put into the fluid in the step
+        from ``step`` (read before the sweep, after the coupling wrote them), beyond half-way
+        bounce-back off a wall at rest (which returns ``f*_i(x)``): per link the fluid node ``x``
+        pulls ``ghost = f[opp(i), s]`` (``s = x + e_i``), so its momentum gains ``-e_i (ghost -
+        f*_i(x))``. Split by the link rule (``surface.link_base``): the moving-wall term ``c 6 w_i
+        rho0 (e_i . u_w) e_i`` (half-way, Ladd's Eq. (8): ``c = 1``, ``u_w`` at the link's midpoint;
+        CLI/Bouzidi: ``c`` from the fraction ``q`` of the link in the fluid and whether ``x - e_i``
+        is fluid, ``u_w`` at ``x + q e_i``), and the rest (the interpolation ``G - f*_i(x)`` and
+        its mass excess ``- w_i delta``; zero for half-way links). Returns per particle the
+        staggered momentum (``(-1)^(p(x)+step+1)``) of each part, ``moving`` and ``interp``
+        (n, 3); with ``node``, the mass each part brings to that node and its links (direction,
+        particle, q, c, whether ``x - e_i`` is fluid). The Galilean exchange changes only what the
+        particle is given, not the ghosts: it has no term here."""
+        from lbmpipe.fluid.boundaries import plane_buffer
+        from lbmpipe.particles.coupling.surface import CLI, HALF_WAY
+        from lbmpipe.particles.rigid import quat_to_matrix
+
         ps = self.ps
         b = ps.bodies
-        out = np.zeros((ps.n, 3))
+        f2 = plane_buffer(f)
+        own = ps.owner
+        moving = np.zeros((ps.n, 3))
+        interp = np.zeros((ps.n, 3))
         sgn = 1.0 if (step + 1) % 2 == 0 else -1.0
+        flat = None if node is None else (node[0] * self.ny + node[1]) * self.az + node[2]
+        out = {"moving": moving, "interp": interp, "node_mass_moving": 0.0, "node_mass_interp": 0.0, "node_links": []}
         for k in ps.free_ids:
-            xn, _, ii, r = ps.links(int(k))
+            k = int(k)
+            xn, sn, ii, rmid = ps.links(k)
             if not len(xn):
                 continue
-            a = xn // (self.ny * self.az)
-            bb = (xn // self.az) % self.ny
-            z = xn % self.az
-            par = self.parity[a, bb, z] * sgn
-            ub = b.v[k][None, :] + np.cross(ps.om[k][None, :], r)
             e = self.e[ii]
-            c = 6.0 * ps.w[ii] * ps.rho0 * np.einsum("ld,ld->l", e, ub) * par
-            out[k] = (c[:, None] * e).sum(axis=0)
+            rx = rmid - 0.5 * e  # the fluid node about the centre (unwrapped, as the kernels)
+            if self.rule == HALF_WAY:
+                q = np.full(len(ii), 0.5)
+                c = np.ones(len(ii))
+                behind = np.ones(len(ii), dtype=bool)
+            else:
+                q = _fractions(int(b.kind[k]), b.h[k].astype(np.float64), quat_to_matrix(b.q[k]), rx, ii, ps.e)
+                a, bb, z = xn // (self.ny * self.az), (xn // self.az) % self.ny, xn % self.az
+                ex, ey, ez = ps.e[ii, 0], ps.e[ii, 1], ps.e[ii, 2]
+                a2, b2, z2 = a - ex, bb - ey, (z - ez) % self.nz
+                inside = (a2 >= 0) & (a2 < self.nx) & (b2 >= 0) & (b2 < self.ny)
+                idx = (np.clip(a2, 0, self.nx - 1) * self.ny + np.clip(b2, 0, self.ny - 1)) * self.az + z2
+                behind = inside & (own[idx] == FLUID)
+                c = np.where(q < 0.5, 1.0, 0.5 / np.maximum(q, 1e-12))
+                if self.rule == CLI:
+                    c = np.where(behind, 2.0 / (1.0 + 2.0 * q), c)
+            rw = rx + q[:, None] * e
+            uw = b.v[k][None, :] + np.cross(ps.om[k][None, :], rw)
+            mw = c * 6.0 * ps.w[ii] * ps.rho0 * np.einsum("ld,ld->l", e, uw)  # the ghost carries -mw
+            extra = f2[ps.opp[ii], sn] - f2[ii, xn]  # ghost - f*_i(x)
+            par = self.parity.reshape(-1)[_plain_index(xn, self.ny, self.az, self.nz)] * sgn
+            moving[k] = ((mw * par)[:, None] * e).sum(axis=0)
+            interp[k] = ((-(extra + mw) * par)[:, None] * e).sum(axis=0)
+            if flat is not None:
+                at = xn == flat
+                if at.any():
+                    out["node_mass_moving"] += float(-mw[at].sum())
+                    out["node_mass_interp"] += float((extra + mw)[at].sum())
+                    out["node_links"] += [{"dir": [int(v) for v in ps.e[i]], "particle": k, "q": round(float(qq), 4),
+                                           "c": round(float(cc), 4), "behind_fluid": bool(bh)}
+                                          for i, qq, cc, bh in zip(ii[at], q[at], c[at], behind[at])]
         return out
+
+
+def _plain_index(xn, ny, az, nz):
+    """Flat index of the (nx, ny, nz) arrays from the flat node index of ``f`` (alloc z ``az``)."""
+    a, rest = np.divmod(xn, ny * az)
+    b, z = np.divmod(rest, az)
+    return (a * ny + b) * nz + z
+
+
+def _fractions(kind, h, A, r, ii, e):
+    """``surface.link_fraction`` of each link (fluid node about the centre ``r``, direction ``ii``):
+    the fraction of the link in the fluid, as the CLI/Bouzidi kernels compute it."""
+    global _fractions_nb
+    if _fractions_nb is None:
+        from numba import njit
+
+        from lbmpipe.particles.coupling.surface import link_fraction
+
+        def loop(kind, h, A, r, ii, e):
+            out = np.empty(len(ii))
+            for n in range(len(ii)):
+                i = ii[n]
+                out[n] = link_fraction(kind, h, A, r[n, 0], r[n, 1], r[n, 2], e[i, 0], e[i, 1], e[i, 2])
+            return out
+
+        _fractions_nb = njit(loop)
+    return _fractions_nb(kind, h, A, np.ascontiguousarray(r), np.ascontiguousarray(ii), np.ascontiguousarray(e))
+
+
+_fractions_nb = None
 
 
 class Watch:
@@ -255,7 +351,11 @@ class Watch:
     def before(self, e, sim):
         if e.phase == "fluid":
             t = sim.step_count
-            self.rec["ladd"] = self.p.ladd_injection(t)
+            lt = self.p.link_terms(sim.f, t, self.node)
+            self.rec["ladd"] = lt["moving"]  # the moving-wall term (the method's link rule)
+            self.rec["interp"] = lt["interp"]
+            self.rec["node_mass_moving"], self.rec["node_mass_interp"] = lt["node_mass_moving"], lt["node_mass_interp"]
+            self.rec["node_links"] = lt["node_links"]
             fluid = self.p.owner() == FLUID
             _, j = self.p.moments(sim.f)
             self.rec["P0"] = self.p.staggered(j, fluid, t)
@@ -368,6 +468,55 @@ class RefillRho0:
         np.add.at(ps.imp[:, :3], k, dj)
         np.add.at(ps.imp[:, 3:], k, np.cross(r, dj))
         self.nodes += len(unc)
+
+
+class _Wrapped:
+    """Base of the counterfactuals around one effect: the wrapped effect's name, phase, record
+    and attributes (the simulation's timers and summary see the same effect)."""
+
+    def __init__(self, effect):
+        self.e_ = effect
+        self.name, self.phase = effect.name, effect.phase
+        self.record_key = getattr(effect, "record_key", None)
+
+    def record(self):
+        return self.e_.record()
+
+    def __getattr__(self, name):
+        return getattr(self.e_, name)
+
+
+class ForceCap(_Wrapped):
+    """Diagnostic counterfactual around the flow-rate controller (``FlowRateControl``): after it
+    sets the driving force, the force (and the controller's integral, so that it does not wind
+    up) is held at most ``cap`` times its reference ``f_ref`` (Hagen-Poiseuille's force of the
+    target flow rate). Below the cap the controller acts as in the run; at the cap the flow rate
+    falls instead. Not a solver option: evidence for the mechanism."""
+
+    def __init__(self, control, cap: float):
+        super().__init__(control)
+        self.cap = float(cap)
+        self.capped_steps = 0
+
+    def __call__(self, sim):
+        ctl = self.e_
+        ctl(sim)
+        lim = self.cap * ctl.f_ref
+        if sim.force[2] > lim:
+            sim.force[2] = lim
+            ctl.f_int = min(ctl.f_int, lim)
+            self.capped_steps += 1
+
+
+class LubricationOff(_Wrapped):
+    """Diagnostic counterfactual: the lubrication effect does nothing (no film impulses; its force
+    reads zero). Switched on a state of a run with lubrication, the effects keep their places (a
+    scene without lubrication would have another list). Not a solver option."""
+
+    def __call__(self, sim):
+        self.e_.force[:] = 0.0
+        self.e_.torque[:] = 0.0
+        self.e_.counts[:] = 0
 
 
 def checker_damping(e, w, opp, omega: float, omega_minus: float, u=(0.0, 0.0, 0.1), dk: float = 0.0) -> float:

@@ -28,29 +28,43 @@ the effects of one step, through wrappers that only look).
    fluid velocity there and the mean over its fluid 3x3x3 neighbourhood, its cover / uncover
    events, the density floor's events there (the node's pulled density below ``rho_min`` before
    the sweep) and in total, the mass correction's calls, and the staggered momentum's budget per
-   effect: what Ladd's moving-wall term of Eq. (8) puts in, per particle (from the live links and
-   the velocities of the step), and what the remap puts in (nodes covered take theirs away;
-   uncovered nodes come back with ``rho u_b``), per particle.
+   effect: what the particle links' moving-wall term puts in, per particle (from the ghost slots
+   the coupling wrote, the live links and the velocities of the step; ``Probe.link_terms``: Ladd's
+   Eq. (8) on half-way links, or the method's link rule: CLI's coefficient ``c = 2/(1+2q)`` and
+   the wall velocity at ``x + q e_i``), what the interpolation itself puts in (``G - f*_i(x)``;
+   not applicable to half-way links), and what the remap puts in (nodes covered take theirs away;
+   uncovered nodes come back with ``rho u_b``), per particle. At the failing node: its density
+   every step, the mass its particle links bring beyond bounce-back at rest (moving-wall and
+   interpolation parts), its links (``q``, whether ``x - e_i`` is fluid), the gaps of the
+   particles near it every step and their lubrication forces. The Galilean exchange and the
+   lubrication act on the particles only: no fluid budget term (the JSON says so, ``method``).
 3. **One change at a time** (each from step 0 as far as ``--extra`` steps past the failure, guard
    on, as a run): half the time step (``numerics.dt_s / 2``, the step counts doubled: lattice
    Mach / 2), ``numerics.collision: trt``, the density floor off (``numerics.density_floor:
    null``; the runs have it on at 0.5), ``particles.collisions.contact_gap_dx`` doubled. The
    options that need no conversion of the state (all but dt) are also switched on the state at
    the window's start ("switched"): the same configuration, one change.
-4. **A counterfactual** (evidence, not an option of the solver; ``_unstable_probe.RefillRho0``):
-   the nodes the remap uncovers are refilled at ``rho0 = 1`` instead of their neighbours' density
-   (the particle pays ``rho0 u_b``), from step 0 and switched at the window's start.
+4. **Counterfactuals** (evidence, not options of the solver; ``_unstable_probe``): ``refill_rho0``
+   (``RefillRho0``), the nodes the remap uncovers are refilled at ``rho0 = 1`` instead of their
+   neighbours' density (the particle pays ``rho0 u_b``); ``force_cap`` (``ForceCap``), the
+   flow-rate controller's force held at most its largest value before the first jam lock (or
+   ``--force-cap`` times its reference); ``lubrication_off`` (``LubricationOff``), the lubrication
+   effect does nothing. From step 0 (or the checkpoint) and switched at the window's start.
+
+``--checkpoint PATH`` starts from a checkpoint the run left (read only) instead of step 0, the
+run's state (the JSON's ``reproduced`` shows the failure again); ``--variants-from pre_jam``
+starts the variants from the last state before the first jam lock.
 
 The named mechanism follows from the figures (``mechanism``); the JSON (``--json``) keeps the
-evidence small; the measurements live in ``benchmarks/_unstable_probe.py``. The README section
-"Issue 47: the two unstable runs" has the tables.
+evidence small; the measurements live in ``benchmarks/_unstable_probe.py``; README: "Issue 47:
+the two unstable runs".
 
 Run (one core; about 10-40 minutes a case, most of it the variant runs; a cold numba cache adds
 the TRT and floor-free kernels' compilation)::
 
     NUMBA_NUM_THREADS=1 nice -n 5 python benchmarks/unstable_cause.py results/credible/cases/cube24_c30_re26/seed3 \
         [--around STEP] [--window 300] [--extra 3000] [--variants dt_half trt floor_off gap_double refill_rho0] \
-        [--json results/credible/unstable/cube24_c30_re26.json]
+        [--checkpoint PATH] [--force-cap RATIO] [--no-switched] [--json results/credible/unstable/cube24_c30_re26.json]
 """
 
 from __future__ import annotations
@@ -66,7 +80,8 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "benchmarks"))
-from _unstable_probe import CHECKER_NODE, FLUID, Probe, RefillRho0, Watch, capture, checker_damping, restore  # noqa: E402
+from _unstable_probe import (CHECKER_NODE, FLUID, ForceCap, LubricationOff, Probe, RefillRho0, Watch, capture,  # noqa: E402
+                             checker_damping, restore)
 
 VARIANTS = {
     "dt_half": "numerics.dt_s / 2 (lattice Mach / 2; steps x 2)",
@@ -77,9 +92,12 @@ VARIANTS = {
 #: diagnostic counterfactuals (not options of the solver): the script changes the state between effects
 COUNTERFACTUALS = {
     "refill_rho0": "counterfactual: uncovered nodes refilled at rho0 = 1, not their neighbours' density",
+    "force_cap": "counterfactual: the flow-rate controller's force held at most its largest value before the first "
+                 "jam lock (--force-cap: that many times its reference)",
+    "lubrication_off": "counterfactual: the lubrication effect does nothing (no film impulses)",
 }
 #: the variants that can be switched on a state without converting it (dt changes the lattice units)
-SWITCHABLE = ("trt", "floor_off", "gap_double", "refill_rho0")
+SWITCHABLE = ("trt", "floor_off", "gap_double", "refill_rho0", "force_cap", "lubrication_off")
 
 
 # ------------------------------------------------------------------------------------------------
@@ -138,6 +156,17 @@ def _guard_row(guard, sim) -> dict:
     return {k: s[k] for k in ("u_max", "u_node", "rho_min", "rho_min_node", "rho_max", "rho_max_node")}
 
 
+def _failing_node(guard, sim, message: str) -> int:
+    """The flat node the guard's failing check named: the density extreme for a density failure,
+    the first non-finite node, else the fastest node."""
+    s = guard.scan(sim)
+    if "non-finite populations" in message and s["nonfinite_node"] >= 0:
+        return s["nonfinite_node"]
+    if "fluid density" in message:
+        return s["rho_min_node"] if s["rho_min"] < guard.limits.rho_min else s["rho_max_node"]
+    return s["u_node"]
+
+
 def _node3(probe, flat: int):
     a, rest = divmod(int(flat), probe.ny * probe.az)
     b, z = divmod(rest, probe.az)
@@ -145,12 +174,15 @@ def _node3(probe, flat: int):
 
 
 def history(sim, probe, until: int, every: int, capture_at: int, log) -> dict:
-    """Steps the baseline from 0 as the run did (guard every 50 steps) to its failure or ``until``;
-    a row every ``every`` steps; the state copied at ``capture_at``."""
+    """Steps the baseline from its state (step 0, or a checkpoint of the run) as the run did (guard
+    every 50 steps) to its failure or ``until``; a row every ``every`` steps; the state copied at
+    ``capture_at``, and every ``10 every`` steps while no body has been locked by the jam rule
+    (``pre_jam``: the last such copy, a start for the variants just before the jam)."""
     from lbmpipe.errors import Unstable
 
     guard = sim.guard
-    rows, state, failure = [], None, None
+    rows, state, failure, pre_jam = [], None, None, None
+    locked0 = probe.tallies()["locked"]
     t0 = time.perf_counter()
     while sim.step_count < until:
         n = every - sim.step_count % every
@@ -162,22 +194,26 @@ def history(sim, probe, until: int, every: int, capture_at: int, log) -> dict:
             failure = {"step": sim.step_count, "message": str(exc)}
         if sim.step_count == capture_at:
             state = capture(sim)
+        if (not failure and sim.step_count % (10 * every) == 0 and sim.step_count < capture_at
+                and probe.tallies()["locked"] == locked0):
+            pre_jam = capture(sim)
         if sim.step_count % every == 0 or failure:
             g = _guard_row(guard, sim)
             st = probe.state()
             row = {"step": sim.step_count, **{k: g[k] for k in ("u_max", "rho_min", "rho_max")},
                    "u_node": _node3(probe, g["u_node"]), "checker_max": st["checker_max"],
                    "checker_node": st["checker_node"], "checker_nodes": st["checker_nodes"],
-                   "Pz": float(st["P"][2]), **probe.particles(), **probe.tallies()}
+                   "Pz": float(st["P"][2]), **probe.particles(), **probe.tallies(), "rho_max_node": _node3(probe, g["rho_max_node"])}
             rows.append(row)
             if sim.step_count % (10 * every) == 0 or failure:
-                log(f"  step {sim.step_count}: |u|max {row['u_max']:.3f} at {row['u_node']}, checker {row['checker_max']:.3f} "
-                    f"({row['checker_nodes']} nodes), moving {row['moving']}/{row['free']}, F/F_ref {row['force_ratio']:.2f} "
-                    f"[{time.perf_counter() - t0:.0f} s]")
+                log(f"  step {sim.step_count}: |u|max {row['u_max']:.3f} at {row['u_node']}, rho {row['rho_min']:.3f}.."
+                    f"{row['rho_max']:.3f} at {row['rho_max_node']}, checker {row['checker_max']:.3f} "
+                    f"({row['checker_nodes']} nodes), moving {row['moving']}/{row['free']}, locked {row['locked']}, "
+                    f"F/F_ref {row['force_ratio']:.2f}, lub max {row['lub_force_max']:.3g} [{time.perf_counter() - t0:.0f} s]")
         if failure:
-            failure["node"] = _node3(probe, guard.scan(sim)["u_node"])
+            failure["node"] = _node3(probe, _failing_node(guard, sim, failure["message"]))
             break
-    return {"rows": rows, "state": state, "failure": failure}
+    return {"rows": rows, "state": state, "failure": failure, "pre_jam": pre_jam}
 
 
 def window(sim, probe, state, stop: int, node, log) -> list[dict]:
@@ -223,7 +259,10 @@ def window(sim, probe, state, stop: int, node, log) -> list[dict]:
                 "u_b": {str(k): probe.surface_velocity(k, node).tolist() for k in near},
                 "P": st["P"].tolist(), "P_start": r["P0"].tolist(),
                 "dP_sweep": (r["P_sweep"] - r["P0"]).tolist(), "dP_remap": (r["P_remap"] - r["P_sweep"]).tolist(),
-                "ladd": r["ladd"].tolist(), "remap": r["remap"].tolist(),
+                "ladd": r["ladd"].tolist(), "interp": r["interp"].tolist(), "remap": r["remap"].tolist(),
+                "node_mass_moving": r["node_mass_moving"], "node_mass_interp": r["node_mass_interp"],
+                "node_links": r["node_links"], "lub_near": probe.lub_force(near), "gaps": probe.gaps(near) if near else {},
+                "locked_now": tl["locked_now"], "lub_force_max": tl["lub_force_max"],
                 "covered": r["covered"], "uncovered": r["uncovered"],
                 "pulled_rho": r.get("pulled_rho"), "floor_nodes": tl["floor_nodes"] - prev["floor_nodes"],
                 "mass_corr": tl["mass_corr"] - prev["mass_corr"], "locked": tl["locked"] - prev["locked"],
@@ -245,10 +284,12 @@ def window(sim, probe, state, stop: int, node, log) -> list[dict]:
     return recs
 
 
-def run_variant(scene, variant, until_base: int, every: int, peak_from: int, state=None, log=print) -> dict:
-    """The scene with one change, from step 0 (``state`` None) or switched on a copied state,
-    to ``until_base`` steps of the run (twice as many at dt/2); guard on. The peaks are taken
-    from base step ``peak_from`` on (the window's start: after the start-up)."""
+def run_variant(scene, variant, until_base: int, every: int, peak_from: int, state=None, log=print,
+                force_cap: float | None = None) -> dict:
+    """The scene with one change, from step 0 (``state`` None) or switched on a copied state (the
+    window's start, or the run's checkpoint), to ``until_base`` steps of the run (twice as many at
+    dt/2); guard on. The peaks are taken from base step ``peak_from`` on (the window's start:
+    after the start-up). ``force_cap``: the cap of ``force_cap`` (times the reference force)."""
     from lbmpipe.errors import Unstable
 
     from lbmpipe.particles.coupling import ParticleMotion
@@ -261,9 +302,22 @@ def run_variant(scene, variant, until_base: int, every: int, peak_from: int, sta
         restore(sim, state)
     if variant == "refill_rho0":
         sim.effects = [RefillRho0(e, probe) if isinstance(e, ParticleMotion) else e for e in sim.effects]
+    wrapped = None
+    if variant == "force_cap":
+        if probe.control is None or not force_cap:
+            raise SystemExit("force_cap: the scene has no flow-rate controller, or no cap was measured (--force-cap)")
+        wrapped = ForceCap(probe.control, force_cap)
+        sim.effects = [wrapped if e is probe.control else e for e in sim.effects]
+    if variant == "lubrication_off":
+        if probe.lub is None:
+            raise SystemExit("lubrication_off: the scene has no lubrication (numerics.lubrication.enabled: false)")
+        wrapped = LubricationOff(probe.lub)
+        sim.effects = [wrapped if e is probe.lub else e for e in sim.effects]
     until = until_base * scale
     out = {"variant": variant, "start": sim.step_count // scale, "status": "completed", "steps_base": None}
-    peak = {"u_max": 0.0, "checker_max": 0.0, "all_locked_samples": 0, "force_ratio_max": 0.0}
+    peak = {"u_max": 0.0, "checker_max": 0.0, "all_locked_samples": 0, "force_ratio_max": 0.0, "rho_max": 0.0,
+            "rho_min": 9.0, "lub_force_max": 0.0, "q_ratio_min": 9.0}
+    series = []
     t0 = time.perf_counter()
     f0 = probe.tallies()
     stride = every * scale
@@ -274,7 +328,7 @@ def run_variant(scene, variant, until_base: int, every: int, peak_from: int, sta
         except Unstable as exc:
             out["status"] = "unstable"
             out["message"] = str(exc)[:240]
-            out["node"] = _node3(probe, sim.guard.scan(sim)["u_node"])
+            out["node"] = _node3(probe, _failing_node(sim.guard, sim, str(exc)))
             failed = True
         if sim.step_count >= peak_from * scale or failed:  # a sample (the failing state's too)
             st = probe.state()
@@ -283,12 +337,24 @@ def run_variant(scene, variant, until_base: int, every: int, peak_from: int, sta
             tl = probe.tallies()
             if failed:
                 out["at_failure"] = {"u_max": round(g["u_max"] * scale, 4), "checker_max": round(st["checker_max"] * scale, 4),
-                                     "moving": pa["moving"], "force_ratio": round(tl["force_ratio"], 3),
+                                     "rho_max": round(g["rho_max"], 4), "moving": pa["moving"],
+                                     "force_ratio": round(tl["force_ratio"], 3), "q_ratio": round(tl["q_ratio"], 4),
+                                     "locked_bodies": tl["locked"] - f0["locked"],
                                      "floor_node_updates": tl["floor_nodes"] - f0["floor_nodes"]}
             peak["u_max"] = max(peak["u_max"], g["u_max"] * scale)
             peak["checker_max"] = max(peak["checker_max"], st["checker_max"] * scale)
             peak["all_locked_samples"] += int(pa["moving"] == 0)
             peak["force_ratio_max"] = max(peak["force_ratio_max"], tl["force_ratio"])
+            peak["rho_max"] = max(peak["rho_max"], g["rho_max"])
+            peak["rho_min"] = min(peak["rho_min"], g["rho_min"])
+            if tl["lub_force_max"] == tl["lub_force_max"]:
+                peak["lub_force_max"] = max(peak["lub_force_max"], tl["lub_force_max"])
+            peak["q_ratio_min"] = min(peak["q_ratio_min"], tl["q_ratio"])
+        if sim.step_count % (10 * stride) == 0 or failed:
+            g = sim.guard.scan(sim)
+            pa, tl = probe.particles(), probe.tallies()
+            series.append([sim.step_count // scale, round(g["u_max"] * scale, 4), round(g["rho_max"], 4), pa["moving"],
+                           tl["locked"] - f0["locked"], round(tl["force_ratio"], 3), round(tl["q_ratio"], 4)])
         if failed:
             break
     out["steps_base"] = sim.step_count / scale
@@ -296,13 +362,20 @@ def run_variant(scene, variant, until_base: int, every: int, peak_from: int, sta
     out.update(peak)
     out["floor_node_updates"] = tl["floor_nodes"] - f0["floor_nodes"]
     out["mass_corr_added"] = tl["mass_corr"] - f0["mass_corr"]
+    out["locked_bodies"] = tl["locked"] - f0["locked"]
+    out["unresolved"] = tl["unresolved"] - f0["unresolved"]
+    out["series_columns"] = ["step", "u_max", "rho_max", "moving", "locked_bodies", "force_ratio", "q_ratio"]
+    out["series"] = series
+    if wrapped is not None and hasattr(wrapped, "capped_steps"):
+        out["force_cap"], out["capped_steps"] = wrapped.cap, wrapped.capped_steps
     out["seconds"] = round(time.perf_counter() - t0, 1)
     if "at_failure" in out:
         log(f"    at the failure: {out['at_failure']}; {out['message'][:200]}")
     log(f"  {variant} ({'switched at ' + str(out['start']) if state is not None else 'from 0'}): {out['status']} at base "
-        f"step {out['steps_base']:g}; from step {peak_from}: peak |u| {out['u_max']:.3f} (the run's lattice units), checker "
-        f"{out['checker_max']:.3f}, samples with every body at rest {out['all_locked_samples']}, F/F_ref max "
-        f"{out['force_ratio_max']:.2f} [{out['seconds']} s]")
+        f"step {out['steps_base']:g}; from step {peak_from}: peak |u| {out['u_max']:.3f} (the run's lattice units), rho "
+        f"{out['rho_min']:.3f}..{out['rho_max']:.3f}, checker {out['checker_max']:.3f}, samples with every body at rest "
+        f"{out['all_locked_samples']}, locked bodies {out['locked_bodies']}, F/F_ref max {out['force_ratio_max']:.2f}, "
+        f"Q/Q* min {out['q_ratio_min']:.3f}, lub max {out['lub_force_max']:.3g} [{out['seconds']} s]")
     return out
 
 
@@ -385,6 +458,21 @@ def evidence(case: str, scene, summary, hist, recs, node, probe) -> dict:
         "pulled_rho_min": round(min((r["pulled_rho"] for r in recs if r.get("pulled_rho") is not None
                                      and r["owner"] == FLUID), default=float("nan")), 4),
     }
+    # the node's density and what its links bring (beyond bounce-back at rest), over the window
+    fl = [r for r in recs if r["owner"] == FLUID]
+    ev["node"]["rho_every_10"] = [[r["step"], round(r["rho"], 4)] for r in fl if r["step"] % 10 == 0 or r is fl[-1]]
+    ev["node"]["rho_last_steps"] = [round(r["rho"], 4) for r in fl[-20:]]
+    ev["node"]["link_mass_window"] = {"moving_wall": round(sum(r["node_mass_moving"] for r in fl), 4),
+                                      "interpolation": round(sum(r["node_mass_interp"] for r in fl), 4),
+                                      "last_20_moving_wall": round(sum(r["node_mass_moving"] for r in fl[-20:]), 4),
+                                      "last_20_interpolation": round(sum(r["node_mass_interp"] for r in fl[-20:]), 4)}
+    ev["node"]["links_last"] = last.get("node_links", [])
+    ev["node"]["lub_force_near"] = {w: {k: round(v, 5) for k, v in r.get("lub_near", {}).items()}
+                                    for w, r in (("first", recs[0] if recs else {}), ("last", last))}
+    gp = [r["gaps"] for r in recs if r.get("gaps")]
+    ev["node"]["gaps_min_window"] = {kind: {k: round(min(g[kind].get(k, float("inf")) for g in gp), 4)
+                                            for k in gp[-1][kind]} for kind in ("pairs", "wall")} if gp else {}
+    ev["node"]["gaps_first"] = gp[0] if gp else {}
     ev["particles"] = {"gaps": probe.gaps(near) if near else {},
                        "v": {str(k): [round(x, 5) for x in probe.ps.bodies.v[k]] for k in near},
                        "omega": {str(k): [round(x, 6) for x in probe.ps.om[k]] for k in near}}
@@ -412,12 +500,32 @@ def evidence(case: str, scene, summary, hist, recs, node, probe) -> dict:
         "dPz_covered_by_particle": _sums(remap[:, :, 0], n),
         "dPz_uncovered_by_particle": _sums(remap[:, :, 1], n),
         "dPz_uncovered_density_excess_by_particle": _sums(remap[:, :, 2], n),
+        "dPz_interpolation_by_particle": (_sums(np.array([r["interp"] for r in recs])[:, :, 2], n) if recs else {})
+        if probe.rule_name != "bounce_back" else "not applicable: half-way links interpolate nothing",
+        "lub_force_max": ([round(recs[0]["lub_force_max"], 5), round(recs[-1]["lub_force_max"], 5),
+                           round(max(r["lub_force_max"] for r in recs), 5)] if recs and probe.lub is not None
+                          else "not applicable: no lubrication in the step"),
+        "locked_now": [recs[0]["locked_now"], recs[-1]["locked_now"]] if recs else None,
+        "rho_max": [round(recs[0]["rho_max"], 4), round(recs[-1]["rho_max"], 4)] if recs else None,
+    }
+    ev["method"] = {
+        "link_rule": probe.rule_name, "momentum_exchange": "galilean" if probe.galilean else "ladd",
+        "lubrication": probe.lub is not None,
+        "budget": ("the moving-wall term with the link rule's coefficient c and the wall velocity at the link's surface "
+                   "point (CLI: c = 2/(1+2q), Bouzidi's local rule where x - e_i is not fluid); the interpolation's "
+                   "part (G - f*_i(x) - w_i delta) separately" if probe.rule_name != "bounce_back" else
+                   "Ladd's moving-wall term of Eq. (8) on half-way links"),
+        "not_in_the_fluid_budget": [t for t, on in (
+            ("the Galilean exchange changes the particles' impulses only (link force, remap): no fluid term", probe.galilean),
+            ("lubrication changes the particles' velocities only (reported as forces)", probe.lub is not None)) if on],
     }
     # the history: growth of the peaks
     hs = [r for r in rows if r["step"] % 250 == 0 or r is rows[-1]]
     ev["history"] = {k: [round(float(r[k]), 4) if isinstance(r[k], float) else r[k] for r in hs]
                      for k in ("step", "u_max", "rho_min", "rho_max", "checker_max", "checker_nodes", "Pz", "moving",
-                               "speed_max", "force_ratio", "locked", "floor_nodes", "mass_corr")}
+                               "speed_max", "force_ratio", "q_ratio", "locked", "locked_now", "unresolved",
+                               "lub_force_max", "floor_nodes", "mass_corr")}
+    ev["history"]["rho_max_node"] = [list(r["rho_max_node"]) for r in hs]
     ev["history"]["u_node"] = [list(r["u_node"]) for r in hs]
     ev["history"]["checker_node"] = [list(r["checker_node"]) for r in hs]
     ev["checker_growth"] = _growth(rows)
@@ -460,7 +568,9 @@ def _largest_pump(w) -> str:
 
 def mechanism(ev) -> list[str]:
     """The mechanisms the figures show, each with its numbers. Criteria: jam lock, every free
-    body at rest for at least 20 steps of the window; checkerboard, u_z at the node alternating
+    body at rest for at least 20 steps of the window; density build-up, the node's density rose by
+    more than 0.5 over the window; lubrication blow-up, the largest lubrication force on a particle
+    near the node grew tenfold over the window; checkerboard, u_z at the node alternating
     every step with a period-2 amplitude above half its mean (over its last stretch as a fluid
     node, the last 20 steps of it, at least 6) and a checkerboard amplitude above CHECKER_NODE within 2 nodes; thin film, at most 2
     fluid nodes between two solids along a lattice line through the node; fast uncover, the node
@@ -495,9 +605,22 @@ def mechanism(ev) -> list[str]:
     if nd["uncovered_at"] and step and step - nd["uncovered_at"][-1] <= 20 and nd["relative_speed_at_uncover"][-1] > 0.1:
         out.append(f"fast uncover: the node was uncovered at step {nd['uncovered_at'][-1]}, refilled at "
                    f"{nd['u_at_uncover'][-1]} against the local fluid mean {nd['u_local_at_uncover'][-1]}")
+    rho = nd.get("rho_every_10") or []
+    if len(rho) >= 2 and rho[-1][1] - rho[0][1] > 0.5:
+        lm = nd["link_mass_window"]
+        out.append(f"density build-up at the node: rho {rho[0][1]} at step {rho[0][0]} -> {rho[-1][1]} at step "
+                   f"{rho[-1][0]}; mass its particle links brought beyond bounce-back at rest over the window: "
+                   f"moving-wall {lm['moving_wall']:+.3f}, interpolation {lm['interpolation']:+.3f} (last 20 steps "
+                   f"{lm['last_20_moving_wall']:+.3f}, {lm['last_20_interpolation']:+.3f}); its links "
+                   f"{[(d['particle'], d['q'], d['behind_fluid']) for d in nd['links_last']]} (particle, q, x - e_i fluid)")
+    lf = nd.get("lub_force_near") or {}
+    first, lastf = max(lf.get("first", {}).values(), default=0.0), max(lf.get("last", {}).values(), default=0.0)
+    if lastf > 10.0 * max(first, 1e-12) and lastf > 0.0:
+        out.append(f"lubrication force blow-up near the node: {first:.3g} -> {lastf:.3g} (largest on a particle "
+                   f"near the node, lattice units) over the window")
     if not out:
-        out.append("none of the tested mechanisms (jam lock, checkerboard mode, thin film, fast uncover) meets its "
-                   "criterion: see the figures")
+        out.append("none of the tested mechanisms (jam lock, checkerboard mode, thin film, fast uncover, density "
+                   "build-up, lubrication blow-up) meets its criterion: see the figures")
     return out
 
 
@@ -517,6 +640,13 @@ def main(argv=None) -> int:
     ap.add_argument("--json", type=Path, default=None, help="write the evidence here (after every variant run too)")
     ap.add_argument("--resume", action="store_true",
                     help="keep the variant runs an interrupted invocation wrote to --json (same command and failure)")
+    ap.add_argument("--checkpoint", type=Path, default=None,
+                    help="start the baseline and the variants from this checkpoint of the run (lbmpipe.checkpoint; "
+                         "read only) instead of step 0")
+    ap.add_argument("--variants-from", choices=("start", "pre_jam"), default="start",
+                    help="variants from the baseline's start (step 0 or --checkpoint) or the last state before the jam")
+    ap.add_argument("--force-cap", type=float, default=None,
+                    help="force_cap's cap over the reference force (default: the history's largest before the jam)")
     args = ap.parse_args(argv)
     import numba
 
@@ -537,6 +667,14 @@ def main(argv=None) -> int:
     if sim.particles is None:
         raise SystemExit(f"{args.case_dir}: the scene has no particles; this diagnosis is for coupled runs")
     probe = Probe(sim, scene, params)
+    cstate, cinfo = None, None
+    if args.checkpoint:
+        cstate, cinfo = read_checkpoint(args.checkpoint, scene, sim, log)
+        restore(sim, cstate)
+        if start < sim.step_count:
+            raise SystemExit(f"the window's start {start} is before the checkpoint's step {sim.step_count}: lower --window")
+    log(f"  method: link rule {probe.rule_name}, exchange {'galilean' if probe.galilean else 'ladd'}, lubrication "
+        f"{probe.lub is not None}; baseline from step {sim.step_count}")
     t0 = time.perf_counter()
     hist = history(sim, probe, around + args.every, args.every, start, log)
     fail = hist["failure"]
@@ -559,12 +697,27 @@ def main(argv=None) -> int:
     ev["checker_damping"] = damping_table(scene)
     ev["command"] = "NUMBA_NUM_THREADS=1 python benchmarks/unstable_cause.py " + " ".join(
         [str(args.case_dir)] + (["--around", str(args.around)] if args.around else [])
-        + ["--window", str(args.window), "--extra", str(args.extra)])
+        + ["--window", str(args.window), "--extra", str(args.extra)]
+        + (["--checkpoint", str(args.checkpoint)] if args.checkpoint else [])
+        + (["--force-cap", str(args.force_cap)] if args.force_cap else [])
+        + (["--variants-from", args.variants_from] if args.variants_from != "start" else []))
+    cap = args.force_cap or _pre_jam_force(hist["rows"])
+    ev["force_cap"] = cap
+    ev["baseline_start"] = int(cstate[1]["sim"]["step_count"]) if cstate else 0
+    if cinfo:
+        ev["checkpoint"] = cinfo
     described = {**VARIANTS, **COUNTERFACTUALS}
     for v in args.variants:
         if v not in described:
             raise SystemExit(f"unknown variant {v!r}; choose from {', '.join(described)}")
-    plan = [(v, "from 0") for v in args.variants]
+    origin = f"from checkpoint {ev['baseline_start']}" if cstate else "from 0"
+    if args.variants_from == "pre_jam":
+        if hist["pre_jam"] is None:
+            raise SystemExit("--variants-from pre_jam: no state before the first jam lock was copied")
+        cstate = hist["pre_jam"]
+        origin = f"switched at {cstate[1]['sim']['step_count']} (before the first jam lock)"
+        ev["variants_start"] = int(cstate[1]["sim"]["step_count"])
+    plan = [(v, origin) for v in args.variants]
     if not args.no_switched and hist["state"] is not None:
         plan += [(v, f"switched at {start}") for v in args.variants if v in SWITCHABLE]
     done = _resumable(args, ev) if args.resume else {}
@@ -575,12 +728,37 @@ def main(argv=None) -> int:
             ev["variants"].append({**done[(v, mode)], "resumed": True})  # run by the interrupted invocation
             log(f"  {v} ({mode}): kept from {args.json}")
             continue
-        state = hist["state"] if mode != "from 0" else None
+        state = cstate if mode == origin else hist["state"]  # cstate None: from step 0
         ev["variants"].append({"description": described[v], "mode": mode,
-                               **run_variant(scene, v, until, args.every, start, state=state, log=log)})
+                               **run_variant(scene, v, until, args.every, start, state=state, log=log, force_cap=cap)})
         _write(args.json, ev, t0, complete=False, log=None)  # a part done is kept if the process ends
     _write(args.json, ev, t0, complete=True, log=log)
     return 0
+
+
+def read_checkpoint(path: Path, scene, sim, log):
+    """The state ``(arrays, meta)`` of a run's checkpoint (``lbmpipe.checkpoint``) and what it is,
+    checked against the simulation's effects (the fingerprint may differ by the packing's path)."""
+    from lbmpipe import checkpoint as ckpt
+
+    head, arrays = ckpt.read(path)
+    same = head.get("fingerprint") == ckpt.scene_fingerprint(scene)
+    if not same:
+        log(f"  note: {path} carries the fingerprint {str(head.get('fingerprint'))[:12]}, the committed scene "
+            f"{ckpt.scene_fingerprint(scene)[:12]}; its effects must match and the failure must reproduce")
+    if head.get("effects") != [e.name for e in sim.effects]:
+        raise SystemExit(f"{path}: the checkpoint's effects {head.get('effects')} are not this scene's")
+    log(f"  checkpoint {path}: step {head['step']}")
+    info = {"path": str(path), "step": int(head["step"]), "fingerprint_matches_committed_scene": same}
+    return ({k: v for k, v in arrays.items() if not k.startswith("run/")}, head["state"]), info
+
+
+def _pre_jam_force(rows) -> float | None:
+    """The largest controller force over its reference in the history before the first jam lock."""
+    if not rows:
+        return None
+    free = [r["force_ratio"] for r in rows if r["locked"] == rows[0]["locked"] and r["force_ratio"] == r["force_ratio"]]
+    return round(max(free), 3) if free and rows[0]["locked"] == 0 else None
 
 
 def _write(path, ev, t0, complete: bool, log) -> None:

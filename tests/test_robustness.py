@@ -311,3 +311,7 @@ def test_an_unstable_packing_rerun_with_the_reference_method_says_how_each_ended
     cause = R.unstable_causes(tmp_path / "base")[0]
     assert cause["rerun"] == "accurate at Mach x 0.5 (again): completed after 1000 steps"
     assert cause["mechanism"] == "checkerboard mode"
+    assert cause["rerun_mechanism"] == ""  # the rerun has no diagnosis of its own
+    (tmp_path / "again/unstable").mkdir()
+    (tmp_path / "again/unstable/cube24_c30_re26.json").write_text(json.dumps({"mechanism": ["jam lock", "(figures)"]}))
+    assert R.unstable_causes(tmp_path / "base")[0]["rerun_mechanism"] == "again: jam lock (figures)"

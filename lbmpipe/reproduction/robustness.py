@@ -628,10 +628,15 @@ def unstable_causes(fid_dir: Path) -> list[dict]:
         d = read_json(path) or {}
         variants = "; ".join(f"{v.get('variant')} ({v.get('mode')}): {v.get('status')}" for v in d.get("variants") or [])
         case = d.get("case", path.stem)
+        mine = [r for r in reruns.itertuples() if str(r.run).split("/seed")[0] == case]
         again = [f"{r.method} at Mach x {r.mach_factor} ({r.level}): {r.status}"
                  + (f" after {int(float(r.steps))} steps" if str(r.steps) not in ("", "nan", "None") else "")
-                 for r in reruns.itertuples() if str(r.run).split("/seed")[0] == case]
+                 for r in mine]
+        # the rerun's own diagnosis, where it ended unstable too (<level>/unstable/<case>.json)
+        there = {r.level: read_json(Path(fid_dir).parent / str(r.level) / "unstable" / f"{case}.json") or {} for r in mine}
+        measured = "; ".join(f"{lvl}: " + " ".join(e["mechanism"]) for lvl, e in there.items() if e.get("mechanism"))
         out.append({"case": case, "scene": d.get("scene", ""), "rerun": "; ".join(again) or "not rerun",
+                    "rerun_mechanism": measured,
                     "step": (d.get("committed") or {}).get("steps"),
                     "mechanism": " ".join(d.get("mechanism") or []) or "not measured",
                     "variants": variants or "none run", "complete": bool(d.get("complete")),
