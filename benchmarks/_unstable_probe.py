@@ -549,3 +549,11 @@ def checker_damping(e, w, opp, omega: float, omega_minus: float, u=(0.0, 0.0, 0.
     k = np.array([np.pi, np.pi, np.pi - dk])
     stream = np.diag(np.exp(-1j * (e @ k)))
     return float(np.abs(np.linalg.eigvals(stream @ coll)).max())
+
+
+def shown_path(path) -> str:
+    """``path`` as it is recorded in committed evidence: from its ``results/`` part on (a checkpoint of
+    a run made in another checkout), else its name: never a machine's local directory."""
+    s = str(path)
+    i = s.find("results/")
+    return s[i:] if i >= 0 else s.rsplit("/", 1)[-1]

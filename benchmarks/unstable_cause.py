@@ -81,7 +81,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "benchmarks"))
 from _unstable_probe import (CHECKER_NODE, FLUID, ForceCap, LubricationOff, Probe, RefillRho0, Watch, capture,  # noqa: E402
-                             checker_damping, restore)
+                             checker_damping, restore, shown_path)
 
 VARIANTS = {
     "dt_half": "numerics.dt_s / 2 (lattice Mach / 2; steps x 2)",
@@ -566,6 +566,16 @@ def _largest_pump(w) -> str:
     return text
 
 
+def _links_said(links) -> str:
+    """The failing node's particle links in words (the list itself stays in the evidence, ``node``)."""
+    if not links:
+        return "no particle links"
+    qs = [d["q"] for d in links]
+    solid = sum(not d["behind_fluid"] for d in links)
+    return (f"its {len(links)} links to particles {sorted({d['particle'] for d in links})} have q {min(qs):.2f}-"
+            f"{max(qs):.2f}, {solid} of them with no fluid node behind (the interpolation's local fallback)")
+
+
 def mechanism(ev) -> list[str]:
     """The mechanisms the figures show, each with its numbers. Criteria: jam lock, every free
     body at rest for at least 20 steps of the window; density build-up, the node's density rose by
@@ -611,8 +621,7 @@ def mechanism(ev) -> list[str]:
         out.append(f"density build-up at the node: rho {rho[0][1]} at step {rho[0][0]} -> {rho[-1][1]} at step "
                    f"{rho[-1][0]}; mass its particle links brought beyond bounce-back at rest over the window: "
                    f"moving-wall {lm['moving_wall']:+.3f}, interpolation {lm['interpolation']:+.3f} (last 20 steps "
-                   f"{lm['last_20_moving_wall']:+.3f}, {lm['last_20_interpolation']:+.3f}); its links "
-                   f"{[(d['particle'], d['q'], d['behind_fluid']) for d in nd['links_last']]} (particle, q, x - e_i fluid)")
+                   f"{lm['last_20_moving_wall']:+.3f}, {lm['last_20_interpolation']:+.3f}); {_links_said(nd['links_last'])}")
     lf = nd.get("lub_force_near") or {}
     first, lastf = max(lf.get("first", {}).values(), default=0.0), max(lf.get("last", {}).values(), default=0.0)
     if lastf > 10.0 * max(first, 1e-12) and lastf > 0.0:
@@ -698,9 +707,10 @@ def main(argv=None) -> int:
     ev["command"] = "NUMBA_NUM_THREADS=1 python benchmarks/unstable_cause.py " + " ".join(
         [str(args.case_dir)] + (["--around", str(args.around)] if args.around else [])
         + ["--window", str(args.window), "--extra", str(args.extra)]
-        + (["--checkpoint", str(args.checkpoint)] if args.checkpoint else [])
+        + (["--checkpoint", shown_path(args.checkpoint)] if args.checkpoint else [])
         + (["--force-cap", str(args.force_cap)] if args.force_cap else [])
-        + (["--variants-from", args.variants_from] if args.variants_from != "start" else []))
+        + (["--variants-from", args.variants_from] if args.variants_from != "start" else [])
+        + ["--variants", *args.variants] + ["--no-switched"] * args.no_switched)
     cap = args.force_cap or _pre_jam_force(hist["rows"])
     ev["force_cap"] = cap
     ev["baseline_start"] = int(cstate[1]["sim"]["step_count"]) if cstate else 0
@@ -749,7 +759,7 @@ def read_checkpoint(path: Path, scene, sim, log):
     if head.get("effects") != [e.name for e in sim.effects]:
         raise SystemExit(f"{path}: the checkpoint's effects {head.get('effects')} are not this scene's")
     log(f"  checkpoint {path}: step {head['step']}")
-    info = {"path": str(path), "step": int(head["step"]), "fingerprint_matches_committed_scene": same}
+    info = {"path": shown_path(path), "step": int(head["step"]), "fingerprint_matches_committed_scene": same}
     return ({k: v for k, v in arrays.items() if not k.startswith("run/")}, head["state"]), info
 
 

@@ -286,6 +286,25 @@ def test_a_control_run_copied_in_asks_for_its_statistics_and_changes_the_robustn
     assert pipe.robustness_present(wc) == f"{before}; {lvl}/{second}=unstable"
 
 
+def test_an_unstable_runs_diagnosis_written_later_makes_the_document_rebuild(tmp_path, monkeypatch):
+    """The document prints each unstable run's measured cause (``unstable/<case>.json``, of the level and
+    of its reruns): those files are inputs of the paper rule, so a new diagnosis is never left out of it
+    silently."""
+    sys.path.insert(0, str(ROOT / "workflow" / "rules"))
+    from common import Pipeline  # workflow/rules/common.py
+    config = _config()
+    again = R.unstable_levels(config, "credible")[0]
+    monkeypatch.chdir(tmp_path)
+    pipe = Pipeline(config, "credible", "none", [], [], [])
+    wc = type("W", (), {"fidelity": "credible"})()
+    assert not [f for f in pipe.paper_extra_inputs(wc) if "/unstable/" in str(f)]
+    for lvl in ("credible", again):
+        (tmp_path / "results" / lvl / "unstable").mkdir(parents=True)
+        (tmp_path / "results" / lvl / "unstable" / "cyl16x16_c50_re26.json").write_text("{}")
+    assert [f for f in pipe.paper_extra_inputs(wc) if "/unstable/" in str(f)] == [
+        "results/credible/unstable/cyl16x16_c50_re26.json", f"results/{again}/unstable/cyl16x16_c50_re26.json"]
+
+
 def test_an_unstable_packing_rerun_with_the_reference_method_says_how_each_ended_beside_the_base(tmp_path):
     """Issue 47 item 5: a level with `unstable_of` reruns named packings (`seeds: [3]`) of the base's
     unstable runs; the table gives both endings and the document's cause list carries the rerun's."""
@@ -314,4 +333,4 @@ def test_an_unstable_packing_rerun_with_the_reference_method_says_how_each_ended
     assert cause["rerun_mechanism"] == ""  # the rerun has no diagnosis of its own
     (tmp_path / "again/unstable").mkdir()
     (tmp_path / "again/unstable/cube24_c30_re26.json").write_text(json.dumps({"mechanism": ["jam lock", "(figures)"]}))
-    assert R.unstable_causes(tmp_path / "base")[0]["rerun_mechanism"] == "again: jam lock (figures)"
+    assert R.unstable_causes(tmp_path / "base")[0]["rerun_mechanism"] == "again: jam lock; (figures)"

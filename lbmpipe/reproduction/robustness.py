@@ -634,7 +634,7 @@ def unstable_causes(fid_dir: Path) -> list[dict]:
                  for r in mine]
         # the rerun's own diagnosis, where it ended unstable too (<level>/unstable/<case>.json)
         there = {r.level: read_json(Path(fid_dir).parent / str(r.level) / "unstable" / f"{case}.json") or {} for r in mine}
-        measured = "; ".join(f"{lvl}: " + " ".join(e["mechanism"]) for lvl, e in there.items() if e.get("mechanism"))
+        measured = "; ".join(f"{lvl}: " + "; ".join(e["mechanism"]) for lvl, e in there.items() if e.get("mechanism"))
         out.append({"case": case, "scene": d.get("scene", ""), "rerun": "; ".join(again) or "not rerun",
                     "rerun_mechanism": measured,
                     "step": (d.get("committed") or {}).get("steps"),

@@ -199,6 +199,9 @@ class Pipeline:
             extra += [f"results/{wildcards.fidelity}/{name}" for name in
                       ("robustness/summary.json", "robustness/cost_robustness.png", "robustness/unstable.csv",
                        "tables/robustness.csv")]
+            # the measured causes of the unstable runs, of this level and of its reruns (robustness.unstable_causes)
+            extra += sorted(str(p) for lvl in [wildcards.fidelity, *unstable_levels(self.config, wildcards.fidelity)]
+                            for p in Path(f"results/{lvl}/unstable").glob("*.json"))
         return extra
 
     def method_inputs(self, wildcards) -> list:
