@@ -58,9 +58,11 @@ from lbmpipe.particles.shapes import CYLINDER, SPHERE  # noqa: E402
 #: ``galilean`` inside the link loop (two copies of the loop); X2 (with ONE) the nodes x - e_i
 #: computed once per link in a loop of their own before the gathers; A8, A32 (with ONE) prefetch
 #: 8 or 32 links ahead instead of 16; NOO (with ONE) no prefetch of owner[x - e_i]; FQ the
-#: gathers, entry_fraction and link_base in one loop before the compaction (prefetched as ONE)
-PF, ONE, EF, NOB, X2, A8, A32, NOO, FQ = 1, 2, 4, 8, 16, 32, 64, 128, 256
-LEVERS = {"PF": PF, "ONE": ONE, "EF": EF, "NOB": NOB, "X2": X2, "A8": A8, "A32": A32, "NOO": NOO, "FQ": FQ}
+#: gathers, entry_fraction and link_base in one loop before the compaction (prefetched as ONE); CH
+#: (with FQ) the change marks read in that loop, the compaction loop run only for a list with a mark
+PF, ONE, EF, NOB, X2, A8, A32, NOO, FQ, CH = 1, 2, 4, 8, 16, 32, 64, 128, 256, 512
+LEVERS = {"PF": PF, "ONE": ONE, "EF": EF, "NOB": NOB, "X2": X2, "A8": A8, "A32": A32, "NOO": NOO, "FQ": FQ,
+          "CH": CH}
 
 
 class SplitScratch(NamedTuple):
@@ -237,6 +239,7 @@ def couple_variant(f2, owner, ids, B, D, lat, G, L, shape, S, rule, galilean, st
             if (lever & FQ) and rule != HALF_WAY:
                 # the gathers, q and the ghost base in one loop (prefetched ahead); compaction
                 # after, carrying q, G, c; the mass excess summed over the live links in order
+                anyc = np.uint8(0)
                 for pos in range(b0, end):
                     if pos + ahead < end:
                         pa = pos + ahead
@@ -255,6 +258,8 @@ def couple_variant(f2, owner, ids, B, D, lat, G, L, shape, S, rule, galilean, st
                           + zmap[LC[pos, 2] - 2 * ie2 + nz])
                     fb = f2[i, x2]
                     bf = owner[x2] == FLUID
+                    if lever & CH:
+                        anyc |= chg[LN[pos, 1]] | chg[xn]
                     c0 = float(LC[pos, 0])
                     c1 = float(LC[pos, 1])
                     c2 = float(LC[pos, 2])
@@ -267,6 +272,8 @@ def couple_variant(f2, owner, ids, B, D, lat, G, L, shape, S, rule, galilean, st
                     LQ[p] = qq
                     LK[p] = cc
                 pos = b0
+                if (lever & CH) and anyc == 0:
+                    pos = end
                 while pos < end:
                     xn = LN[pos, 0]
                     sn = LN[pos, 1]
