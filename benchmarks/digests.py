@@ -3,7 +3,9 @@ not change the physics ("same bits") does not.
 
 Each run builds a scene through the public API (``Scene``, ``derive``, ``simulation_from_scene``),
 steps it and prints the sha256 of the final populations and of the particle state (position,
-velocity, orientation, angular velocity). Run it with the code before and after the change, on one
+velocity, orientation, angular velocity). One run is the accurate method's (issue 45's accurate
+coupling): the committed credible scene ``cyl8x16_c30_re9.4`` seed 1 (50 x 50 x 100 nodes, its
+committed packing) with ``METHODS["accurate"]`` applied as ``benchmarks/step.py`` does. Run it with the code before and after the change, on one
 thread, and compare the lines::
 
     NUMBA_NUM_THREADS=1 python benchmarks/digests.py [--steps 200]
@@ -54,6 +56,12 @@ def cases() -> dict[str, dict]:
     trt["name"] = "cyl8x16_c30_trt_bouzidi"
     trt["numerics"].update({"collision": "trt", "wall": "bouzidi"})
     out[trt["name"]] = trt
+    # the accurate method (CLI + Galilean coupling, TRT, Bouzidi wall) on a committed credible scene
+    sys.path.insert(0, str(ROOT / "benchmarks"))
+    from step import scenes
+
+    acc, _ = scenes("credible", "cyl8x16_c30_re9.4", 1, "accurate")
+    out["cyl8x16_c30_re9.4_accurate"] = acc.model_dump(mode="json", exclude_unset=True)
     for name in ("box_couette", "box_poiseuille"):
         out[name] = yaml.safe_load((ROOT / "scenes" / f"{name}.yaml").read_text())
     # cheapest first (fewest kernels to compile): the fluid-only runs, then the particle runs

@@ -79,7 +79,7 @@ from numba import njit, prange
 from ..rigid import quat_to_matrix
 from .implicit import solve6
 from .nodes import FLUID
-from .prefetch import PREFETCH_AHEAD, prefetch
+from .prefetch import PREFETCH_AHEAD, prefetch, prefetch1
 from .surface import HALF_WAY, entry_fraction, link_base
 
 
@@ -93,21 +93,18 @@ class Shapes(NamedTuple):
 class SurfaceScratch(NamedTuple):
     """Per-thread buffers (threads, max links of a particle) of the link passes: ``f`` the
     population ``f*_i(x)``, ``g`` the interpolated ghost base ``G``, ``q`` the fraction and ``c``
-    the moving-wall coefficient of each link, ``fb`` and ``fo`` the populations ``f*_i(x - e_i)``
-    and ``f*_opp(i)(x)``; ``m`` (threads, 6, 7) the 6x6 system."""
+    the moving-wall coefficient of each link; ``m`` (threads, 6, 7) the 6x6 system."""
 
     f: np.ndarray
     g: np.ndarray
     q: np.ndarray
     c: np.ndarray
-    fb: np.ndarray
-    fo: np.ndarray
     m: np.ndarray
 
 
 def surface_scratch(threads: int, links: int) -> SurfaceScratch:
     """Zeroed ``SurfaceScratch`` for ``threads`` threads and particles of up to ``links`` links."""
-    return SurfaceScratch(*(np.zeros((threads, links)) for _ in range(6)), np.zeros((threads, 6, 7)))
+    return SurfaceScratch(*(np.zeros((threads, links)) for _ in range(4)), np.zeros((threads, 6, 7)))
 
 
 @njit(parallel=True, cache=True)
@@ -157,8 +154,6 @@ def couple_free_surface(f2, owner, ids, B, D, lat, G, L, shape, S, rule, galilea
     SG = S.g
     SQ = S.q
     SCc = S.c
-    SB = S.fb
-    SO = S.fo
     SM = S.m
     Q = e.shape[0]
     nx = dims[0]
@@ -171,8 +166,6 @@ def couple_free_surface(f2, owner, ids, B, D, lat, G, L, shape, S, rule, galilea
         LG = SG[tid]
         LQ = SQ[tid]
         LK = SCc[tid]
-        LB = SB[tid]
-        LO = SO[tid]
         M = SM[tid]
         A = quat_to_matrix(q[k])
         h0 = hh[k, 0]
@@ -201,24 +194,60 @@ def couple_free_surface(f2, owner, ids, B, D, lat, G, L, shape, S, rule, galilea
             oi = opp[i]
             b0 = lbase[k, i]
             end = b0 + lcnt[k, i]
-            # The scattered reads first, in loops without branches: their cache misses (f is out
-            # of cache after the sweep) overlap instead of waiting one by one (as in ``ladd``).
-            for pos in range(b0, end):
-                if pos + PREFETCH_AHEAD < end:
-                    prefetch(f2, i, LN[pos + PREFETCH_AHEAD, 0], 0)
-                LF[pos - off0] = f2[i, LN[pos, 0]]
-            if rule != HALF_WAY:
-                # f*_opp(i)(x), and f*_i(x - e_i) with whether x - e_i is fluid (in LK for now);
-                # x - e_i from the unwrapped coordinates c - 2 e_i through the wrap tables
+            if rule == HALF_WAY:
+                # The scattered reads first, in a loop without branches: their cache misses (f is
+                # out of cache after the sweep) overlap instead of waiting one by one (as in ``ladd``).
                 for pos in range(b0, end):
                     if pos + PREFETCH_AHEAD < end:
-                        prefetch(f2, oi, LN[pos + PREFETCH_AHEAD, 0], 0)
+                        prefetch(f2, i, LN[pos + PREFETCH_AHEAD, 0], 0)
+                    LF[pos - off0] = f2[i, LN[pos, 0]]
+            else:
+                # body frame: the link's unit direction, and the fluid node at c = 0 (A^T (O - e_i))
+                ex = float(ie0)
+                ey = float(ie1)
+                ez = float(ie2)
+                ni = math.sqrt(ex * ex + ey * ey + ez * ez)
+                d0 = (A[0, 0] * ex + A[1, 0] * ey + A[2, 0] * ez) / ni
+                d1 = (A[0, 1] * ex + A[1, 1] * ey + A[2, 1] * ez) / ni
+                d2 = (A[0, 2] * ex + A[1, 2] * ey + A[2, 2] * ez) / ni
+                P0 = A[0, 0] * (O0 - ex) + A[1, 0] * (O1 - ey) + A[2, 0] * (O2 - ez)
+                P1 = A[0, 1] * (O0 - ex) + A[1, 1] * (O1 - ey) + A[2, 1] * (O2 - ez)
+                P2 = A[0, 2] * (O0 - ex) + A[1, 2] * (O1 - ey) + A[2, 2] * (O2 - ez)
+                # One loop per link: the gathers f*_i(x), f*_opp(i)(x), f*_i(x - e_i) and
+                # owner[x - e_i], all prefetched PREFETCH_AHEAD links ahead, then q and G, whose
+                # arithmetic runs while the next links' lines are in flight (issue 45: 20-28 % off
+                # the kernel against separate gather and arithmetic loops; the same operations,
+                # the same bits). x - e_i from the unwrapped coordinates c - 2 e_i through the wrap
+                # tables. Dead links are computed too and dropped below.
+                for pos in range(b0, end):
+                    if pos + PREFETCH_AHEAD < end:
+                        pa = pos + PREFETCH_AHEAD
+                        xa = LN[pa, 0]
+                        prefetch(f2, i, xa, 0)
+                        prefetch(f2, oi, xa, 0)
+                        xb = ((xmap[LC[pa, 0] - 2 * ie0 + nx] * ny + ymap[LC[pa, 1] - 2 * ie1 + ny]) * az
+                              + zmap[LC[pa, 2] - 2 * ie2 + nz])
+                        prefetch(f2, i, xb, 0)
+                        prefetch1(owner, xb)
                     p = pos - off0
-                    LO[p] = f2[oi, LN[pos, 0]]
+                    xn = LN[pos, 0]
+                    fv = f2[i, xn]
+                    fo = f2[oi, xn]
                     x2 = ((xmap[LC[pos, 0] - 2 * ie0 + nx] * ny + ymap[LC[pos, 1] - 2 * ie1 + ny]) * az
                           + zmap[LC[pos, 2] - 2 * ie2 + nz])
-                    LB[p] = f2[i, x2]
-                    LK[p] = 1.0 if owner[x2] == FLUID else 0.0
+                    fb = f2[i, x2]
+                    behind = owner[x2] == FLUID
+                    c0 = float(LC[pos, 0])
+                    c1 = float(LC[pos, 1])
+                    c2 = float(LC[pos, 2])
+                    qq = entry_fraction(kk, h0, h1, h2, P0 + A[0, 0] * c0 + A[1, 0] * c1 + A[2, 0] * c2,
+                                        P1 + A[0, 1] * c0 + A[1, 1] * c1 + A[2, 1] * c2,
+                                        P2 + A[0, 2] * c0 + A[1, 2] * c1 + A[2, 2] * c2, d0, d1, d2, ni)
+                    gv, cc = link_base(rule, qq, fv, fb, fo, behind)
+                    LF[p] = fv
+                    LG[p] = gv
+                    LQ[p] = qq
+                    LK[p] = cc
             pos = b0
             while pos < end:
                 xn = LN[pos, 0]
@@ -232,8 +261,8 @@ def couple_free_surface(f2, owner, ids, B, D, lat, G, L, shape, S, rule, galilea
                         for d in range(3):
                             LC[pos, d] = LC[end, d]
                         LF[pos - off0] = LF[end - off0]
-                        LO[pos - off0] = LO[end - off0]
-                        LB[pos - off0] = LB[end - off0]
+                        LG[pos - off0] = LG[end - off0]
+                        LQ[pos - off0] = LQ[end - off0]
                         LK[pos - off0] = LK[end - off0]
                         continue
                 pos += 1
@@ -245,32 +274,11 @@ def couple_free_surface(f2, owner, ids, B, D, lat, G, L, shape, S, rule, galilea
                     LQ[p] = 0.5
                     LK[p] = 1.0
                 continue
-            # body frame: the link's unit direction, and the fluid node at c = 0 (A^T (O - e_i))
-            ex = float(ie0)
-            ey = float(ie1)
-            ez = float(ie2)
-            ni = math.sqrt(ex * ex + ey * ey + ez * ez)
-            d0 = (A[0, 0] * ex + A[1, 0] * ey + A[2, 0] * ez) / ni
-            d1 = (A[0, 1] * ex + A[1, 1] * ey + A[2, 1] * ez) / ni
-            d2 = (A[0, 2] * ex + A[1, 2] * ey + A[2, 2] * ez) / ni
-            P0 = A[0, 0] * (O0 - ex) + A[1, 0] * (O1 - ey) + A[2, 0] * (O2 - ez)
-            P1 = A[0, 1] * (O0 - ex) + A[1, 1] * (O1 - ey) + A[2, 1] * (O2 - ez)
-            P2 = A[0, 2] * (O0 - ex) + A[1, 2] * (O1 - ey) + A[2, 2] * (O2 - ez)
+            # the interpolation's mass excess over the live links, in link order
             for pos in range(b0, end):
                 p = pos - off0
-                c0 = float(LC[pos, 0])
-                c1 = float(LC[pos, 1])
-                c2 = float(LC[pos, 2])
-                qq = entry_fraction(kk, h0, h1, h2, P0 + A[0, 0] * c0 + A[1, 0] * c1 + A[2, 0] * c2,
-                                    P1 + A[0, 1] * c0 + A[1, 1] * c1 + A[2, 1] * c2,
-                                    P2 + A[0, 2] * c0 + A[1, 2] * c1 + A[2, 2] * c2, d0, d1, d2, ni)
-                fv = LF[p]
-                gv, cc = link_base(rule, qq, fv, LB[p], LO[p], LK[p] > 0.5)
-                exc += gv - fv
+                exc += LG[p] - LF[p]
                 wsum += w[i]
-                LG[p] = gv
-                LQ[p] = qq
-                LK[p] = cc
         delta = exc / wsum if wsum > 0.0 else 0.0
         # ---- pass 1b: sums per direction, folded into g = (F0, T0), Z and the Galilean term
         for p_ in range(6):

@@ -41,3 +41,25 @@ def prefetch(typingctx, arr, i, j, write):
         return context.get_dummy_value()
 
     return sig, codegen
+
+
+@intrinsic
+def prefetch1(typingctx, arr, j):
+    """Read hint for ``arr[j]`` of a 1-D array (the owner map), as ``prefetch`` for 2-D arrays; no
+    effect on results. Inputs: ``arr`` a 1-D array, ``j`` an integer index (not bounds-checked).
+    Output: none (locality hint 3, data)."""
+    sig = types.void(arr, j)
+
+    def codegen(context, builder, signature, args):
+        aty = signature.args[0]
+        ary = context.make_array(aty)(context, builder, args[0])
+        idx = [context.cast(builder, args[1], signature.args[1], types.intp)]
+        ptr = cgutils.get_item_pointer(context, builder, aty, ary, idx, wraparound=False)
+        i8p = ir.IntType(8).as_pointer()
+        i32 = ir.IntType(32)
+        fn = cgutils.get_or_insert_function(builder.module, ir.FunctionType(ir.VoidType(), [i8p, i32, i32, i32]),
+                                            "llvm.prefetch.p0")
+        builder.call(fn, [builder.bitcast(ptr, i8p), ir.Constant(i32, 0), ir.Constant(i32, 3), ir.Constant(i32, 1)])
+        return context.get_dummy_value()
+
+    return sig, codegen
