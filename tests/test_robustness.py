@@ -334,3 +334,30 @@ def test_an_unstable_packing_rerun_with_the_reference_method_says_how_each_ended
     (tmp_path / "again/unstable").mkdir()
     (tmp_path / "again/unstable/cube24_c30_re26.json").write_text(json.dumps({"mechanism": ["jam lock", "(figures)"]}))
     assert R.unstable_causes(tmp_path / "base")[0]["rerun_mechanism"] == "again: jam lock; (figures)"
+
+
+def test_a_partly_run_controls_plan_scales_the_cost_model_by_what_its_methods_runs_measured(tmp_path):
+    """The planned core-hours of a control: its runs present as measured, the missing ones as the cost
+    model predicts them times what runs of the same method took against the model (the level's own,
+    else another level's of its method), so a particle side the model never saw is in the plan once
+    one run shows its cost."""
+    config = _config()
+    root = tmp_path / "results"
+    (root / "credible" / "tables").mkdir(parents=True)
+    shutil.copy(ROOT / "results" / "credible" / "tables" / "cost_model.json", root / "credible" / "tables")
+    ref, fine = R.reference_level(config, "credible"), "credible_dx0625"
+    assert config["fidelities"][fine]["method"] == config["fidelities"][ref]["method"]
+    m0, plan0, src0 = R.level_core_hours(config, ref, root)
+    _, fine0, _ = R.level_core_hours(config, fine, root)
+    assert m0 == 0 and plan0 > 0 and src0 == "cost model"
+    first = [r for r in level_runs(config, ref) if "/seed" in r][0]
+    d = root / ref / "cases" / first
+    d.mkdir(parents=True)
+    (d / "summary.json").write_text(json.dumps({"status": "completed", "wall_seconds": 1.0}))
+    model = R.wall_model("credible", root.parent)
+    _, pred, _, _ = R._wall_against_model(config, ref, root, model)
+    (d / "summary.json").write_text(json.dumps({"status": "completed", "wall_seconds": 3.0 * pred}))
+    m1, plan1, src1 = R.level_core_hours(config, ref, root)
+    assert src1 == "measured + cost model" and m1 == pytest.approx(3.0 * pred / 3600)
+    assert plan1 == pytest.approx(3.0 * plan0)          # the model times 3 on every run
+    assert R.level_core_hours(config, fine, root)[1] == pytest.approx(3.0 * fine0)  # same method, no run of its own

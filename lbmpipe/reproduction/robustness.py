@@ -434,30 +434,57 @@ def health_rows(config: dict, base: str, root: Path) -> pd.DataFrame:
 # cost
 
 
+def _wall_against_model(config: dict, level: str, root: Path, model) -> tuple[float, float, float, int]:
+    """(wall seconds of the level's runs present, the model's prediction for those runs, its prediction
+    for the runs missing, how many are missing); predictions 0 without a model."""
+    fid = config["fidelities"][level]
+    wall, done_pred, missing_pred, missing = 0.0, 0.0, 0.0, 0
+    for run in level_runs(config, level):
+        s = read_json(Path(root) / level / "cases" / run / "summary.json")
+        name, case = run_case(config, run)
+        pred = 0.0
+        if model is not None:
+            sc = Scene.model_validate(case_scene(name, case, level, fid))
+            pred = predict(sc, derive(sc), model, 1.0)
+        if s is not None and s.get("wall_seconds"):
+            wall += float(s["wall_seconds"])
+            done_pred += pred
+        elif model is not None:
+            missing_pred += pred
+            missing += 1
+    return wall, done_pred, missing_pred, missing
+
+
+def plan_factor(config: dict, level: str, root: Path, model) -> tuple[float, str]:
+    """What the cost model's prediction is multiplied by for the level's missing runs, and from what:
+    the level's own runs (summed wall over summed prediction), else the other levels' runs of its
+    ``method``, else the accurate method's measured cost over the paper's (``accurate_factor``) for
+    ``method: accurate``, else 1."""
+    method = config["fidelities"][level].get("method")
+    wall, pred, _, _ = _wall_against_model(config, level, root, model)
+    if pred > 0:
+        return wall / pred, "its own runs"
+    if method is not None:
+        same = [_wall_against_model(config, other, root, model) for other, f in config["fidelities"].items()
+                if other != level and f.get("method") == method]
+        wall, pred = sum(x[0] for x in same), sum(x[1] for x in same)
+        if pred > 0:
+            return wall / pred, f"runs of method {method}"
+    if method == "accurate":
+        return accurate_factor(config, root), "credible_accurate"
+    return 1.0, "the model"
+
+
 def level_core_hours(config: dict, level: str, root: Path) -> tuple[float, float, str]:
     """(measured core-hours of the runs present, planned core-hours of the whole level, source).
     Measured: each run's ``wall_seconds`` (one thread a run). Planned: the measured runs plus the
     others predicted by the wall-time model of the committed runs (``cases.wall_model``, at a core
-    each), times the accurate method's measured cost over the paper method's (``accurate_factor``)
-    for a level with ``method: accurate``."""
-    measured, planned, predicted = 0.0, 0.0, 0
+    each) times ``plan_factor`` (what runs of the same method took against the model)."""
     model = wall_model("credible", Path(root).parent)
-    fid = config["fidelities"][level]
-    factor = accurate_factor(config, root) if fid.get("method") == "accurate" else 1.0
-    for run in level_runs(config, level):
-        s = read_json(Path(root) / level / "cases" / run / "summary.json")
-        if s is not None and s.get("wall_seconds"):
-            measured += float(s["wall_seconds"])
-            planned += float(s["wall_seconds"])
-            continue
-        if model is None:
-            continue
-        name, case = run_case(config, run)
-        sc = Scene.model_validate(case_scene(name, case, level, fid))
-        planned += factor * predict(sc, derive(sc), model, 1.0)
-        predicted += 1
-    src = "measured" if not predicted else ("cost model" if not measured else "measured + cost model")
-    return measured / 3600, planned / 3600, src
+    measured, _, missing_pred, missing = _wall_against_model(config, level, root, model)
+    factor = plan_factor(config, level, root, model)[0] if missing else 1.0
+    src = "measured" if not missing else ("cost model" if not measured else "measured + cost model")
+    return measured / 3600, (measured + factor * missing_pred) / 3600, src
 
 
 def accurate_factor(config: dict, root: Path) -> float:
