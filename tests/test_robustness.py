@@ -334,6 +334,10 @@ def test_an_unstable_packing_rerun_with_the_reference_method_says_how_each_ended
     (tmp_path / "again/unstable").mkdir()
     (tmp_path / "again/unstable/cube24_c30_re26.json").write_text(json.dumps({"mechanism": ["jam lock", "(figures)"]}))
     assert R.unstable_causes(tmp_path / "base")[0]["rerun_mechanism"] == "again: jam lock; (figures)"
+    (tmp_path / "again/unstable/cube24_c30_re26.json").write_text(json.dumps({
+        "mechanism": ["jam lock"], "variants": [{"variant": "force_cap", "mode": "switched", "status": "completed"}]}))
+    assert R.unstable_causes(tmp_path / "base")[0]["rerun_mechanism"] == (
+        "again: jam lock. One change at a time: force_cap (switched): completed")
 
 
 def test_a_partly_run_controls_plan_scales_the_cost_model_by_what_its_methods_runs_measured(tmp_path):

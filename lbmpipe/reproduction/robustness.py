@@ -642,6 +642,11 @@ def unstable_rows(config: dict, base: str, root: Path) -> pd.DataFrame:
     return pd.DataFrame(rows, columns=UNSTABLE_COLUMNS)
 
 
+def _variants_said(evidence: dict) -> str:
+    """The variant runs of an unstable run's evidence (``benchmarks/unstable_cause.py``), a clause each."""
+    return "; ".join(f"{v.get('variant')} ({v.get('mode')}): {v.get('status')}" for v in evidence.get("variants") or [])
+
+
 def unstable_causes(fid_dir: Path) -> list[dict]:
     """The measured cause of each unstable run (``unstable/<case>.json`` of
     ``benchmarks/unstable_cause.py``): the guard's message says "likely cause"; this is the
@@ -653,7 +658,7 @@ def unstable_causes(fid_dir: Path) -> list[dict]:
         reruns = pd.DataFrame(columns=UNSTABLE_COLUMNS)
     for path in sorted((Path(fid_dir) / "unstable").glob("*.json")):
         d = read_json(path) or {}
-        variants = "; ".join(f"{v.get('variant')} ({v.get('mode')}): {v.get('status')}" for v in d.get("variants") or [])
+        variants = _variants_said(d)
         case = d.get("case", path.stem)
         mine = [r for r in reruns.itertuples() if str(r.run).split("/seed")[0] == case]
         again = [f"{r.method} at Mach x {r.mach_factor} ({r.level}): {r.status}"
@@ -661,7 +666,9 @@ def unstable_causes(fid_dir: Path) -> list[dict]:
                  for r in mine]
         # the rerun's own diagnosis, where it ended unstable too (<level>/unstable/<case>.json)
         there = {r.level: read_json(Path(fid_dir).parent / str(r.level) / "unstable" / f"{case}.json") or {} for r in mine}
-        measured = "; ".join(f"{lvl}: " + "; ".join(e["mechanism"]) for lvl, e in there.items() if e.get("mechanism"))
+        measured = "; ".join(f"{lvl}: " + "; ".join(e["mechanism"])
+                             + (f". One change at a time: {_variants_said(e)}" if e.get("variants") else "")
+                             for lvl, e in there.items() if e.get("mechanism"))
         out.append({"case": case, "scene": d.get("scene", ""), "rerun": "; ".join(again) or "not rerun",
                     "rerun_mechanism": measured,
                     "step": (d.get("committed") or {}).get("steps"),
