@@ -671,6 +671,7 @@ def unstable_causes(fid_dir: Path) -> list[dict]:
                              for lvl, e in there.items() if e.get("mechanism"))
         out.append({"case": case, "scene": d.get("scene", ""), "rerun": "; ".join(again) or "not rerun",
                     "rerun_mechanism": measured,
+                    "rerun_cause": "; ".join(e["mechanism"][0].split(":")[0] for e in there.values() if e.get("mechanism")),
                     "step": (d.get("committed") or {}).get("steps"),
                     "mechanism": " ".join(d.get("mechanism") or []) or "not measured",
                     "variants": variants or "none run", "complete": bool(d.get("complete")),
