@@ -455,13 +455,13 @@ def _wall_against_model(config: dict, level: str, root: Path, model) -> tuple[fl
     return wall, done_pred, missing_pred, missing
 
 
-def plan_factor(config: dict, level: str, root: Path, model) -> tuple[float, str]:
+def plan_factor(config: dict, level: str, root: Path, model, own: tuple | None = None) -> tuple[float, str]:
     """What the cost model's prediction is multiplied by for the level's missing runs, and from what:
     the level's own runs (summed wall over summed prediction), else the other levels' runs of its
     ``method``, else the accurate method's measured cost over the paper's (``accurate_factor``) for
-    ``method: accurate``, else 1."""
+    ``method: accurate``, else 1. ``own``: the level's ``_wall_against_model`` when the caller has it."""
     method = config["fidelities"][level].get("method")
-    wall, pred, _, _ = _wall_against_model(config, level, root, model)
+    wall, pred, _, _ = own if own is not None else _wall_against_model(config, level, root, model)
     if pred > 0:
         return wall / pred, "its own runs"
     if method is not None:
@@ -481,8 +481,9 @@ def level_core_hours(config: dict, level: str, root: Path) -> tuple[float, float
     others predicted by the wall-time model of the committed runs (``cases.wall_model``, at a core
     each) times ``plan_factor`` (what runs of the same method took against the model)."""
     model = wall_model("credible", Path(root).parent)
-    measured, _, missing_pred, missing = _wall_against_model(config, level, root, model)
-    factor = plan_factor(config, level, root, model)[0] if missing else 1.0
+    own = _wall_against_model(config, level, root, model)
+    measured, _, missing_pred, missing = own
+    factor = plan_factor(config, level, root, model, own)[0] if missing else 1.0
     src = "measured" if not missing else ("cost model" if not measured else "measured + cost model")
     return measured / 3600, (measured + factor * missing_pred) / 3600, src
 
