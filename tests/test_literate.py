@@ -498,6 +498,9 @@ def test_claim_findings_render_the_robustness_tables_strings_pending_included(tm
                   "under Y": ["reproduced (partly run (holds on the runs present); baseline reproduced)",
                               " (partly run (no comparison on the runs present); baseline contradicted)",
                               "inconclusive (partly run (changes on the runs present); baseline reproduced)"],
+                  "under Y, packing 1 (interim, 4 cases)": ["reproduced (holds; baseline reproduced)",
+                                                            "no comparison",
+                                                            "reproduced (changes; baseline inconclusive)"],
                   "robust_under_controls": ["yes", "pending: X not (fully) run", "no: changes under X"]}
                  ).to_csv(fid / "tables" / "robustness.csv", index=False)
     f = findings.claim_findings(fid)
@@ -508,7 +511,8 @@ def test_claim_findings_render_the_robustness_tables_strings_pending_included(tm
     # a partly run control's differences on its runs present are pending, not changes
     assert f["robustness"]["per_control"] == ("under X claims [1](#claim-1) hold and [3](#claim-3) change; Y partly run: "
                                               "on its runs present claims [1](#claim-1) agree and [3](#claim-3) differ "
-                                              "(pending)")
+                                              "(pending); Y on packing 1 alone (4 cases; interim, the other "
+                                              "packings running): claims [1](#claim-1) agree and [3](#claim-3) differ")
 
 
 def test_why_reads_the_flags_physically_with_the_worst_value_not_a_list_of_seeds(tmp_path):

@@ -263,6 +263,36 @@ def test_a_control_identical_to_the_base_holds_every_claim_it_covers_with_zero_s
     assert "over" in sys_["figures"]["omega_rel"]  # measured, with its figures
 
 
+def test_a_several_packing_control_with_only_packing_1_run_gives_an_interim_verdict_that_never_decides_robustness(
+        tmp_path):
+    """Three packings planned, packing 1 present as copies of the base's: the control itself has no
+    case complete (no comparison), its first packing alone holds every covered claim against the
+    base's packing 1 (labelled interim), and the robustness column stays pending, not "yes"."""
+    config = _config()
+    cases = ["cube8_c30_re9.4", "cube8_c30_re26"]
+    config["fidelities"] = {"credible": config["fidelities"]["credible"],
+                            "ref": {**config["fidelities"]["credible"], "seeds": 3, "control_of": "credible",
+                                    "control": "ref", "cases": cases}}
+    for case in cases:
+        src = ROOT / "results/credible/cases" / case
+        shutil.copytree(src, tmp_path / "credible/cases" / case)
+        shutil.copytree(src / "seed1", tmp_path / "ref/cases" / case / "seed1")
+    interim = R.interim_verdicts(config, "credible", tmp_path)
+    assert set(interim["control"]) == {"ref, packing 1"}
+    covered = interim[~interim["status"].str.startswith("not covered")]
+    assert 6 in set(covered["claim"])
+    assert set(covered["status"]) == {"interim (holds on packing 1 of 2 cases)"}
+    assert (covered["verdict"] == covered["baseline"]).all()
+    rows = pd.concat([R.control_verdicts(config, "credible", tmp_path), interim], ignore_index=True)
+    robust = R.robust_column({6: "reproduced"}, rows)
+    assert robust[6] == "pending: ref"
+    # once every packing is present there is nothing interim left to show
+    for case in cases:
+        for k in (2, 3):
+            shutil.copytree(ROOT / "results/credible/cases" / case / f"seed{k}", tmp_path / "ref/cases" / case / f"seed{k}")
+    assert R.interim_verdicts(config, "credible", tmp_path).empty
+
+
 def test_a_control_run_copied_in_asks_for_its_statistics_and_changes_the_robustness_rules_trigger(tmp_path,
                                                                                                    monkeypatch):
     """`snakemake -c2` must rebuild the robustness outputs when a control run appears: the rule's

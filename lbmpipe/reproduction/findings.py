@@ -93,6 +93,12 @@ def claim_findings(fid_dir: Path) -> dict | None:
         holds, changes = having("(holds;"), having("(changes;")
         # a partly run control: the verdicts on its runs present, pending until it is complete
         agree, differ = having("(partly run (holds"), having("(partly run (changes")
+        # a several-packing control on its first packing alone while the others run (robustness.INTERIM):
+        # its header "under <control>, packing 1 (interim, N cases)", its cells "<verdict> (holds; ...)"
+        interim = c.endswith(" cases)") and " (interim, " in c
+        i_agree, i_differ = (holds, changes) if interim else ([], [])
+        if interim:
+            holds = changes = []
         status = sorted({v for v in cells if not v.startswith("not covered") and "(" not in v})
         name = c[len("under "):]
         if holds or changes:
@@ -101,6 +107,11 @@ def claim_findings(fid_dir: Path) -> dict | None:
         elif agree or differ:
             per_control.append(f"{name} partly run: on its runs present claims {_links(agree) or 'none'} agree"
                                + (f" and {_links(differ)} differ" if differ else "") + " (pending)")
+        elif i_agree or i_differ:
+            name, case_n = name.split(" (interim, ")
+            per_control.append(f"{name.replace(', packing', ' on packing')} alone ({case_n.split()[0]} cases; interim, "
+                               f"the other packings running): claims {_links(i_agree) or 'none'} agree"
+                               + (f" and {_links(i_differ)} differ" if i_differ else ""))
         elif status:
             per_control.append(f"{name}: {', '.join(status)}")
     words = {"yes": "robust (holds under every control)", "no": "changed by a control",

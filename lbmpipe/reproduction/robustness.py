@@ -14,7 +14,9 @@ A level with ``control_of: <base>`` (``config.yaml``: ``credible_ma2``, ``credib
   control's runs is there) or ``partly run`` (the missing runs named: the verdict is on the runs
   present). :func:`robust_column` makes ``robust_under_controls`` of it: ``yes`` when the verdict
   holds under every control that covers it (all of them complete), ``no`` naming the controls that
-  change it, ``pending`` naming the controls not (fully) run, ``not covered by any control``.
+  change it, ``pending`` naming the controls not (fully) run, ``not covered by any control``. A
+  several-packing control still running also gets rows ``<control>, packing 1`` (:func:`interim_verdicts`):
+  its first packing alone against ``base``'s, a look ahead that never decides robustness.
 - ``shifts.csv``: per control, case and observable, ``base``'s value and the control's (the same
   packings) and the shift: relative for mean |Omega| and the profile distance, in degrees for the
   mean angle, absolute for an orientation-bin fraction. ``systematic.json``: the largest |shift|
@@ -211,12 +213,48 @@ def control_verdicts(config: dict, base: str, root: Path) -> pd.DataFrame:
     return pd.concat(frames, ignore_index=True) if frames else pd.DataFrame(columns=CONTROL_COLUMNS)
 
 
+INTERIM = "interim"
+
+
+def interim_verdicts(config: dict, base: str, root: Path) -> pd.DataFrame:
+    """For a partly run control with several packings per case (the reference): the claims on the
+    first packing alone of every case whose packing-1 run is present, beside ``base``'s on the same
+    packings, as the one-packing controls (Ma/2) are judged. Labelled ``<control>, packing 1``
+    with status ``interim (holds|changes on packing 1 of N cases)``: a look ahead while the other
+    packings run, never a control (:func:`robust_column` leaves it out)."""
+    frames = []
+    for lvl in control_levels(config, base):
+        seeds = level_seeds(config["fidelities"][lvl])
+        done, missing = runs_done(config, lvl, root)
+        if len(seeds) < 2 or not missing:
+            continue
+        first = [c for c in level_cases(config, lvl)
+                 if f"{c}/seed{seeds[0]}" in done or c in done]
+        if not first:
+            continue
+        cases = level_cases(config, lvl)
+        label = f"{control_label(config, lvl)}, packing {seeds[0]}"
+        with tempfile.TemporaryDirectory() as work:
+            b = view_claims(config, base, cases, seeds, root, Path(work) / "base")
+            bp = view_claims(config, base, first, [seeds[0]], root, Path(work) / "base_first")
+            c = view_claims(config, lvl, first, [seeds[0]], root, Path(work) / "control_first")
+        rows = control_rows(b, c, label, lvl, [r for r in done if split_run(r)[1] in (None, seeds[0])], [],
+                            baseline_present=bp)
+        of = f"on packing {seeds[0]} of {len(first)} cases"
+        rows["status"] = [s if s.startswith("not covered") else
+                          f"{INTERIM} ({s} {of})" if s in ("holds", "changes") else
+                          f"{INTERIM} (no comparison {of})" for s in rows["status"]]
+        frames.append(rows)
+    return pd.concat(frames, ignore_index=True) if frames else pd.DataFrame(columns=CONTROL_COLUMNS)
+
+
 def robust_column(base_verdicts: dict[int, str], controls: pd.DataFrame) -> dict[int, str]:
     """``robust_under_controls`` per claim from :func:`control_rows`' table (module docstring): a
     verdict changes only under a complete control; under one partly run it is pending."""
     out = {}
     for k, verdict in base_verdicts.items():
         rows = controls[controls["claim"] == k] if len(controls) else controls
+        rows = rows[~rows["status"].astype(str).str.startswith(INTERIM)] if len(rows) else rows
         covering = rows[~rows["status"].astype(str).str.startswith("not covered")] if len(rows) else rows
         if not len(covering):
             out[k] = "not covered by any control"
@@ -562,6 +600,9 @@ def write(config: dict, base: str, root: Path, out_dir: Path) -> dict:
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     controls = control_verdicts(config, base, root)
+    interim = interim_verdicts(config, base, root)
+    if len(interim):
+        controls = pd.concat([controls, interim], ignore_index=True)
     shifts = shift_rows(config, base, root)
     measured = systematic_from_shifts(shifts)
     conv = convergence_rows(config, base, root)
@@ -591,11 +632,18 @@ def robustness_table(claims: pd.DataFrame, controls: pd.DataFrame) -> pd.DataFra
     for label in (list(dict.fromkeys(controls["control"])) if len(controls) else []):
         sub = controls[controls["control"] == label].set_index("claim")
 
-        def cell(k, sub=sub):
+        interim = sub["status"].astype(str).str.startswith(INTERIM)
+
+        def cell(k, sub=sub, interim=interim.any()):
             r = sub.loc[k]
             s = str(r["status"])
-            return s if s.startswith(("not covered", "not run")) else f"{r['verdict']} ({s}; baseline {r['baseline']})"
-        out[f"under {label}"] = out["claim"].map(cell)
+            if interim and s.startswith(INTERIM):  # "interim (holds on packing 1 of N cases)" -> "holds"
+                s = s[len(INTERIM) + 2:].split(" on packing")[0]
+            return s if s.startswith(("not covered", "not run")) or not r["verdict"] else f"{r['verdict']} ({s}; baseline {r['baseline']})"
+        head = f"under {label}"
+        if interim.any():  # the case count once, in the header: "under reference, packing 1 (interim, 12 cases)"
+            head += f" ({INTERIM}, {str(sub.loc[interim, 'status'].iloc[0]).split(' of ')[-1].rstrip(')')})"
+        out[head] = out["claim"].map(cell)
     out["robust_under_controls"] = out["claim"].map(robust_column(dict(zip(claims["claim"], claims["verdict"])),
                                                                   controls))
     return out
