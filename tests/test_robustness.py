@@ -214,7 +214,11 @@ def test_controls_target_plans_only_the_control_levels_runs_and_nothing_under_ne
 def test_document_section_counts_robust_changed_pending_and_not_covered_apart(tmp_path):
     (tmp_path / "tables").mkdir()
     (tmp_path / "robustness").mkdir()
-    pd.DataFrame({"claim": [1, 2, 3, 4], "verdict": ["reproduced"] * 4,
+    pd.DataFrame({"claim": [1, 2, 3, 4], "verdict": ["reproduced"] * 4, "verdict_with_systematic": ["inconclusive"] * 4,
+                  "under reference": ["reproduced (holds; baseline reproduced)",
+                                      "inconclusive (changes; baseline reproduced)",
+                                      "reproduced (partly run (holds on the runs present); baseline reproduced)",
+                                      "not covered by reference"],
                   "robust_under_controls": ["yes", "no: changes under reference", "pending: Ma/2 not (fully) run",
                                             "not covered by any control"]}).to_csv(tmp_path / "tables/robustness.csv",
                                                                                    index=False)
@@ -227,6 +231,12 @@ def test_document_section_counts_robust_changed_pending_and_not_covered_apart(tm
     assert sec["counts"] == {"robust": 1, "changed": 1, "pending": 1, "not covered": 1}
     assert sec["not_run"] == ["Ma/2"]
     assert sec["cost"]["rows"][0][-1] == "not run" and sec["cost"]["rows"][1][-1] == "complete"
+    # the document's table: a verdict that holds is said once; a change keeps its baseline; the verdicts
+    # with the systematic term stand in the claims summary, not again here
+    assert "verdict_with_systematic" not in sec["table"]["columns"]
+    assert [r[2] for r in sec["table"]["rows"]] == ["reproduced (holds)", "inconclusive (changes; baseline reproduced)",
+                                                    "reproduced (partly run (holds on the runs present))",
+                                                    "not covered by reference"]
 
 
 def test_the_unstable_runs_name_the_measured_mechanism_not_the_guards_guess():
