@@ -248,19 +248,28 @@ def test_the_unstable_runs_name_the_measured_mechanism_not_the_guards_guess():
     assert not causes["cyl16x16_c50_re26"]["complete"]
 
 
-def test_a_control_identical_to_the_base_holds_every_claim_it_covers_with_zero_shifts(tmp_path):
-    """End to end on committed runs: the control level's seed-1 runs are copies of the base's, so every
-    covered verdict holds, the shifts are 0 and the systematic term is 0 (measured, not defaulted)."""
+def _copied_control(tmp_path: Path, name: str, seeds: int) -> tuple[dict, list[str]]:
+    """A control level ``name`` of ``credible`` on claim 6's pair (8 mm cubes at 30 %, Re 9.4 and 26)
+    with ``seeds`` packings planned, its packing-1 runs copies of the committed base's."""
     config = _config()
-    cases = ["cube8_c30_re9.4", "cube8_c30_re26"]  # claim 6's pair at 30 %, 8 mm
+    cases = ["cube8_c30_re9.4", "cube8_c30_re26"]
     config["fidelities"] = {"credible": config["fidelities"]["credible"],
-                            "copy": {**config["fidelities"]["credible"], "seeds": 1, "control_of": "credible",
-                                     "control": "copy", "cases": cases}}
+                            name: {**config["fidelities"]["credible"], "seeds": seeds, "control_of": "credible",
+                                   "control": name, "cases": cases}}
     for case in cases:
         src = ROOT / "results/credible/cases" / case
         shutil.copytree(src, tmp_path / "credible/cases" / case)
-        shutil.copytree(src / "seed1", tmp_path / "copy/cases" / case / "seed1")
-        shutil.copytree(src / "seed1", tmp_path / "copy/cases" / case, dirs_exist_ok=True)
+        shutil.copytree(src / "seed1", tmp_path / name / "cases" / case / "seed1")
+    return config, cases
+
+
+def test_a_control_identical_to_the_base_holds_every_claim_it_covers_with_zero_shifts(tmp_path):
+    """End to end on committed runs: the control level's seed-1 runs are copies of the base's, so every
+    covered verdict holds, the shifts are 0 and the systematic term is 0 (measured, not defaulted)."""
+    config, cases = _copied_control(tmp_path, "copy", seeds=1)
+    for case in cases:  # one packing: the run is the case
+        shutil.copytree(ROOT / "results/credible/cases" / case / "seed1", tmp_path / "copy/cases" / case,
+                        dirs_exist_ok=True)
     rows = R.control_verdicts(config, "credible", tmp_path)
     covered = rows[~rows["status"].str.startswith("not covered")]
     assert set(covered["claim"]) >= {6} and set(covered["status"]) == {"holds"}
@@ -278,15 +287,7 @@ def test_a_several_packing_control_with_only_packing_1_run_gives_an_interim_verd
     """Three packings planned, packing 1 present as copies of the base's: the control itself has no
     case complete (no comparison), its first packing alone holds every covered claim against the
     base's packing 1 (labelled interim), and the robustness column stays pending, not "yes"."""
-    config = _config()
-    cases = ["cube8_c30_re9.4", "cube8_c30_re26"]
-    config["fidelities"] = {"credible": config["fidelities"]["credible"],
-                            "ref": {**config["fidelities"]["credible"], "seeds": 3, "control_of": "credible",
-                                    "control": "ref", "cases": cases}}
-    for case in cases:
-        src = ROOT / "results/credible/cases" / case
-        shutil.copytree(src, tmp_path / "credible/cases" / case)
-        shutil.copytree(src / "seed1", tmp_path / "ref/cases" / case / "seed1")
+    config, cases = _copied_control(tmp_path, "ref", seeds=3)
     interim = R.interim_verdicts(config, "credible", tmp_path)
     assert set(interim["control"]) == {"ref, packing 1"}
     covered = interim[~interim["status"].str.startswith("not covered")]
