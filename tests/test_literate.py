@@ -488,6 +488,16 @@ def test_physical_results_are_computed_from_the_tables_cubes_against_cylinders_a
     assert "Cubes spin 2 times faster" in text2 and "lean towards the flow" in text2
 
 
+def test_a_level_without_controls_says_nothing_about_robustness_in_its_abstract(tmp_path):
+    fid = tmp_path / "lvl"
+    (fid / "tables").mkdir(parents=True)
+    pd.DataFrame({"claim": [1], "statement": ["a."], "verdict": ["reproduced"]}).to_csv(fid / "claims.csv", index=False)
+    pd.DataFrame({"claim": [1], "verdict": ["reproduced"], "verdict_with_systematic": ["reproduced"],
+                  "robust_under_controls": ["not covered by any control"]}).to_csv(fid / "tables" / "robustness.csv",
+                                                                                   index=False)
+    assert findings.claim_findings(fid)["robustness"] is None
+
+
 def test_claim_findings_render_the_robustness_tables_strings_pending_included(tmp_path):
     fid = tmp_path / "lvl"
     (fid / "tables").mkdir(parents=True)
@@ -511,8 +521,26 @@ def test_claim_findings_render_the_robustness_tables_strings_pending_included(tm
     # a partly run control's differences on its runs present are pending, not changes
     assert f["robustness"]["per_control"] == ("under X claims [1](#claim-1) hold and [3](#claim-3) change; Y partly run: "
                                               "on its runs present claims [1](#claim-1) agree and [3](#claim-3) differ "
-                                              "(pending); Y on packing 1 alone (4 cases; interim, the other "
-                                              "packings running): claims [1](#claim-1) agree and [3](#claim-3) differ")
+                                              "(pending); Y on packing 1 alone (4 cases, interim): claims [1](#claim-1) agree "
+                                              "and [3](#claim-3) differ")
+
+
+def test_the_mass_correction_sizes_say_in_how_many_runs_it_took_mass_out(tmp_path, monkeypatch):
+    fid = tmp_path / "lvl"
+    (fid / "tables").mkdir(parents=True)
+    pd.DataFrame({"case": ["a/seed1", "a/seed2", "b/seed1"], "status": ["completed"] * 3,
+                  "mass_floor_rel": [0, 0, 0], "mass_corrected_rel": [0.01, 0.02, 0.6],
+                  "mass_corrected_throughflow": [0.001, 0.002, 0.01], "mass_corrected_signed": [-0.01, 0.02, 0.6]}
+                 ).to_csv(fid / "tables" / "run_health.csv", index=False)
+    config = {"cases": {"a": {"particles": {"concentration": 0.02}}, "b": {"particles": {"concentration": 0.3}}}}
+    monkeypatch.setattr(findings, "run_health_figures", lambda run_dir: {"floor_sample_share": 0.0})
+    sizes = {c["concentration"]: c for c in findings.correction_sizes(fid, config)}
+    assert (sizes["2"]["taken_out"], sizes["2"]["runs"], sizes["30"]["taken_out"]) == (1, 2, 0)
+    # a run-health table without the sign is an old one: a loud error, not a count of zero
+    pd.read_csv(fid / "tables" / "run_health.csv").drop(columns="mass_corrected_signed").to_csv(
+        fid / "tables" / "run_health.csv", index=False)
+    with pytest.raises(KeyError):
+        findings.correction_sizes(fid, config)
 
 
 def test_why_reads_the_flags_physically_with_the_worst_value_not_a_list_of_seeds(tmp_path):

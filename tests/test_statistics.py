@@ -422,6 +422,28 @@ def test_renormalised_mass_is_judged_against_the_mass_through_the_pipe_not_the_r
     assert h["issues"] == [] and h["mass_corrected_rel"] == pytest.approx(0.1)
 
 
+def test_a_mass_correction_that_took_mass_out_is_judged_by_its_size_and_keeps_its_sign():
+    # a dilute run whose correction removed 1 % of the mass: the limit sees 0.01, the table says -0.01
+    lat = {"fluid_nodes": 197600, "flow_rate_lu": 157.7}
+    s = {"status": "completed", "steps": 60000, "lattice": lat, "mass_correction": {"mass_added_rel": -0.01}}
+    h = health.run_health(s, None, health.thresholds()["health"])
+    assert h["mass_corrected_rel"] == pytest.approx(0.01) and health.mass_corrected_signed(s) == pytest.approx(-0.01)
+    assert h["mass_corrected_throughflow"] == pytest.approx(0.01 * 197600 / (157.7 * 60000))
+    assert np.isnan(health.mass_corrected_signed({"status": "completed"}))
+
+
+def test_the_run_health_table_keeps_the_sign_of_the_mass_correction_and_stats_json_does_not_change(tmp_path):
+    run = tmp_path / "c" / "seed1"
+    run.mkdir(parents=True)
+    (run / "summary.json").write_text(json.dumps({"status": "completed", "steps": 100,
+                                                  "mass_correction": {"mass_added_rel": -0.02}}))
+    row = health.health_row("c/seed1", run, health.thresholds()["health"])
+    assert row["mass_corrected_rel"] == pytest.approx(0.02) and row["mass_corrected_signed"] == pytest.approx(-0.02)
+    # the health block a run's stats.json embeds is unchanged (stats.json rebuilds bit for bit from the series)
+    assert "mass_corrected_signed" not in health.run_health(json.loads((run / "summary.json").read_text()), None,
+                                                            health.thresholds()["health"])
+
+
 def test_run_health_table_has_a_row_per_case_and_flags_the_one_beyond_a_threshold(tmp_path):
     fid = tmp_path / "lvl"
     _long_case(fid / "cases", summary_extra={"mass_drift_rel": 0.05})

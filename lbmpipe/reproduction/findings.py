@@ -84,6 +84,8 @@ def claim_findings(fid_dir: Path) -> dict | None:
         key = "not covered" if cell.startswith("not covered") else cell.split(":")[0].split(" (")[0].strip()
         lead.setdefault(key, []).append(fmt(r.claim))
     controls = [c for c in rob.columns if c.startswith("under ")]
+    if not controls:  # a level without robustness controls has nothing to say about them
+        return out
     per_control = []
     for c in controls:
         cells = rob[c].astype(str)
@@ -109,8 +111,8 @@ def claim_findings(fid_dir: Path) -> dict | None:
                                + (f" and {_links(differ)} differ" if differ else "") + " (pending)")
         elif i_agree or i_differ:
             name, case_n = name.split(" (interim, ")
-            per_control.append(f"{name.replace(', packing', ' on packing')} alone ({case_n.split()[0]} cases; interim, "
-                               f"the other packings running): claims {_links(i_agree) or 'none'} agree"
+            per_control.append(f"{name.replace(', packing', ' on packing')} alone ({case_n.split()[0]} cases, interim): "
+                               f"claims {_links(i_agree) or 'none'} agree"
                                + (f" and {_links(i_differ)} differ" if i_differ else ""))
         elif status:
             per_control.append(f"{name}: {', '.join(status)}")
@@ -252,7 +254,8 @@ def _runs(fid_dir: Path, config: dict) -> pd.DataFrame:
 
 def correction_sizes(fid_dir: Path, config: dict) -> list[dict]:
     """Per concentration, over the runs with collisions: the mass the mass correction put back
-    (fraction of the pipe's fluid mass over the run; of the mass through the pipe), the mass the
+    (fraction of the pipe's fluid mass over the run, in size; of the mass through the pipe; the runs
+    where it took mass out instead), the mass the
     density floor added, and the share of samples with a node at the floor (the runs'
     ``flow_rate.csv``, as :func:`lbmpipe.reproduction.robustness.run_health_figures` counts them)."""
     rh = _runs(fid_dir, config)
@@ -267,6 +270,8 @@ def correction_sizes(fid_dir: Path, config: dict) -> list[dict]:
         out.append({"concentration": fmt(100 * c), "runs": len(g),
                     "fluid_median": fmt(mc.median()), "fluid_max": fmt(mc.max()),
                     "through_max": fmt(g["mass_corrected_throughflow"].astype(float).max()),
+                    # runs where the correction took mass out instead (its sign; a table without it: error)
+                    "taken_out": int((g["mass_corrected_signed"].astype(float) < 0).sum()),
                     "floor_mass_max": fmt(g["mass_floor_rel"].astype(float).max()),
                     "floor_share_median": fmt(float(np.nanmedian(share)) if np.isfinite(share).any() else float("nan")),
                     "floor_share_max": fmt(float(np.nanmax(share)) if np.isfinite(share).any() else float("nan")),

@@ -20,6 +20,8 @@ Run health of a case (:func:`run_health`), from its ``summary.json`` and ``flow_
   cross-section during the run (``mass_corrected_rel * fluid nodes / (Q_lu * steps)``): the
   spurious source the correction is, against the flow it sits in, independent of the run's length
   (judged: ``max_mass_corrected_throughflow``);
+- ``mass_corrected_signed``: ``mass_corrected_rel`` with its sign (negative where the correction took
+  mass out over the run);
 - ``density_deviation_median``, ``density_deviation_max``: median and maximum over the samples of
   ``flow_rate.csv``'s ``max_density_deviation`` (largest ``|rho - 1|`` of the lattice);
 - ``rotation_projections``, ``rotation_projection_share``: rotating projections of the collision
@@ -51,7 +53,7 @@ from .unpackable import read_json, read_summary
 _NAN = float("nan")
 CONFIG_PATH = Path(__file__).resolve().parents[2] / "config.yaml"
 HEALTH_COLUMNS = ["case", "status", "mass_floor_rel", "mass_drift_rel", "mass_corrected_rel",
-                  "mass_corrected_throughflow", "density_deviation_median", "density_deviation_max", "rotation_projections",
+                  "mass_corrected_throughflow", "mass_corrected_signed", "density_deviation_median", "density_deviation_max", "rotation_projections",
                   "rotation_projection_share", "max_overlap_lu", "max_overlap_between_lu", "flow_rate_error_rel", "frozen", "locked",
                   "steady", "issues", "flags"]
 #: health quantity -> (threshold key in diagnostics.health, label of an issue)
@@ -107,16 +109,22 @@ def rotation_projection_share(summary: dict) -> tuple[float, float]:
     return n, (n / steps if np.isfinite(n) and steps > 0 else _NAN)
 
 
-def mass_corrected_rel(summary: dict) -> float:
-    """Mass renormalised in total by the particles' mass correction, relative to the initial mass:
-    ``summary.json`` ``mass_correction.mass_added_rel`` (or ``mass_added`` over ``mass0``); NaN if the
-    summary does not record it."""
+def mass_corrected_signed(summary: dict) -> float:
+    """Net mass the particles' mass correction added over the run, relative to the initial mass,
+    with its sign (negative: it took mass out): ``summary.json`` ``mass_correction.mass_added_rel``
+    (or ``mass_added`` over ``mass0``); NaN if the summary does not record it."""
     rec = summary.get("mass_correction") or {}
     if "mass_added_rel" in rec:
-        return abs(_num(rec["mass_added_rel"]))
+        return _num(rec["mass_added_rel"])
     if "mass_added" in rec and _num(rec.get("mass0")) > 0:
-        return abs(_num(rec["mass_added"]) / _num(rec["mass0"]))
+        return _num(rec["mass_added"]) / _num(rec["mass0"])
     return _NAN
+
+
+def mass_corrected_rel(summary: dict) -> float:
+    """Mass renormalised in total by the particles' mass correction, relative to the initial mass: the
+    size of :func:`mass_corrected_signed` (what the health limit judges)."""
+    return abs(mass_corrected_signed(summary))
 
 
 def mass_corrected_throughflow(summary: dict) -> float:
@@ -221,7 +229,9 @@ def health_row(case: str, case_dir: Path, limits: dict, case_cfg: dict | None = 
         h.update(status=combined_status(stats, read_json(case_dir / "summary.json")),
                  issues=list(stats["health"].get("issues") or []))
     else:
-        h = run_health(read_summary(case_dir, case_cfg), read_flow_rate(case_dir), limits)
+        summary = read_summary(case_dir, case_cfg)
+        h = run_health(summary, read_flow_rate(case_dir), limits)
+        h["mass_corrected_signed"] = mass_corrected_signed(summary or {})  # the table's alone, not stats.json's
     flags = [f for f in case_flags(stats) if f != "unhealthy"] + (["unhealthy"] if h["issues"] else [])
     spin = stats.get("spinup") if isinstance(stats.get("spinup"), dict) else {}
     return {"case": case, **{k: h[k] for k in HEALTH_COLUMNS[1:HEALTH_COLUMNS.index("frozen")]},
