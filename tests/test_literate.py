@@ -597,10 +597,18 @@ def test_claim_appendix_is_one_line_per_claim_linking_the_csv(tmp_path):
 
 def test_the_methods_effect_on_rotation_is_the_median_and_range_of_each_controls_measured_shifts(tmp_path):
     (tmp_path / "robustness").mkdir()
-    pd.DataFrame({"control": ["Ma/2"] * 4 + ["gap"], "case": ["a", "a", "b", "b", "a"],
-                  "observable": ["omega", "omega", "omega", "angle", "omega"],
-                  "shift": [-0.10, -0.30, 0.04, 5.0, 0.5]}).to_csv(tmp_path / "robustness" / "shifts.csv", index=False)
+    pd.DataFrame({"control": ["Ma/2"] * 5 + ["gap"], "case": ["a", "a", "b", "b", "s", "a"],
+                  "observable": ["omega", "omega", "omega", "angle", "omega", "omega"],
+                  "shift": [-0.10, -0.30, 0.04, 5.0, -0.8, 0.5],
+                  "sensitivity": [False] * 4 + [True, False]}).to_csv(tmp_path / "robustness" / "shifts.csv",
+                                                                      index=False)
     text = findings.method_sensitivity(tmp_path)
-    # the angle shift (degrees) is not a rotation rate; Ma/2's median of -10, -30, +4 % is -10 %
+    # the angle shift (degrees) is not a rotation rate, the sensitivity case s no verdict's case;
+    # Ma/2's median of -10, -30, +4 % is -10 %
     assert text.endswith("Ma/2 -10 % (-30 to +4 %, 2 cases); gap +50 % (+50 to +50 %, 1 cases).")
     assert findings.method_sensitivity(tmp_path / "none") is None
+    # a shifts table that predates the column is an error, not a quiet inclusion
+    pd.read_csv(tmp_path / "robustness" / "shifts.csv").drop(columns="sensitivity").to_csv(
+        tmp_path / "robustness" / "shifts.csv", index=False)
+    with pytest.raises(ValueError, match="sensitivity"):
+        findings.method_sensitivity(tmp_path)

@@ -105,7 +105,12 @@ def test_systematic_term_is_the_largest_shift_per_observable_and_a_config_value_
          "base": 0.02, "base_ci95": 0.0, "control_value": 0.01, "control_ci95": 0.0, "shift": -0.5},
         {"control": "reference", "case": "b", "observable": "profile", "key": "profile_distance",
          "base": 0.2, "base_ci95": 0.0, "control_value": 0.22, "control_ci95": 0.0, "shift": 0.1},
-    ])
+    ]).assign(sensitivity=False)
+    # a sensitivity case (collisions off: no verdict rests on it) moves far and sets no term
+    shifts.loc[len(shifts)] = {"control": "reference", "case": "c_nocoll", "observable": "angle",
+                               "key": "mean_angle_deg", "base": 66.0, "base_ci95": 3.0, "control_value": 37.0,
+                               "control_ci95": 1.0, "shift": -29.0, "sensitivity": True}
+    assert R.is_sensitivity({"particles": {}, "collisions": False}) and not R.is_sensitivity({"particles": {}})
     got = R.systematic_from_shifts(shifts)
     assert got["terms"]["omega_rel"] == pytest.approx(0.12)
     assert got["terms"]["angle_deg"] == pytest.approx(2.5)
@@ -139,7 +144,7 @@ def _run(d: Path, status="completed", floor_devs=(0.1, 0.5, 0.2, 0.6), mass_rel=
                                                                                               index=False)
 
 
-def test_health_side_by_side_gives_mass_put_back_and_floor_share_and_not_run_for_a_missing_reference(tmp_path):
+def test_health_side_by_side_gives_mass_put_back_with_its_sign_and_floor_share_and_not_run_for_a_missing_reference(tmp_path):
     config = {"cases": {"cube8_c30_re9.4": {"reynolds": 9.4, "particles": {"shape": "cube", "edge_mm": 8,
                                                                          "concentration": 0.3}},
                         "flow_re9.4": {"reynolds": 9.4}},
@@ -155,6 +160,11 @@ def test_health_side_by_side_gives_mass_put_back_and_floor_share_and_not_run_for
     assert b["floor_sample_share"] == pytest.approx(0.25)                     # 2 of 4, then 0 of 4
     r = rows.loc[("cube8_c30_re9.4", "ref")]
     assert r["status"] == "completed (1 of 2 runs)" and r["mass_corrected_fluid"] == 0.0
+    # a correction that took mass out keeps its sign, in both columns
+    _run(tmp_path / "out", mass_rel=-0.2)
+    out = R.run_health_figures(tmp_path / "out")
+    assert out["mass_corrected_fluid"] == pytest.approx(-0.2)
+    assert out["mass_corrected_throughflow"] == pytest.approx(-0.2 * 1000 / (10 * 1000))
     assert rows.loc[("flow_re9.4", "ref"), "status"] == "not run"
 
 
@@ -297,6 +307,9 @@ def test_a_several_packing_control_with_only_packing_1_run_gives_an_interim_verd
     rows = pd.concat([R.control_verdicts(config, "credible", tmp_path), interim], ignore_index=True)
     robust = R.robust_column({6: "reproduced"}, rows)
     assert robust[6] == "pending: ref"
+    # its shifts set packing 1 beside the base's packing 1 (identical copies: 0), never the base's three
+    shifts = R.shift_rows(config, "credible", tmp_path)
+    assert len(shifts) and shifts["shift"].abs().max() == 0.0
     # once every packing is present there is nothing interim left to show
     for case in cases:
         for k in (2, 3):

@@ -225,7 +225,11 @@ def method_sensitivity(fid_dir: Path) -> str | None:
     sh = read_table(Path(fid_dir) / "robustness" / "shifts.csv")
     if sh is None or not {"control", "case", "observable", "shift"} <= set(sh.columns):
         return None
-    om = sh[sh["observable"] == "omega"].dropna(subset=["shift"])
+    if "sensitivity" not in sh:
+        raise ValueError(f"{Path(fid_dir) / 'robustness' / 'shifts.csv'}: no 'sensitivity' column; rebuild it "
+                         "(snakemake --forcerun robustness)")
+    # the cases no verdict rests on (robustness.is_sensitivity) are not the method's effect on the claims
+    om = sh[(sh["observable"] == "omega") & ~sh["sensitivity"].astype(bool)].dropna(subset=["shift"])
     parts = []
     for control, g in om.groupby("control", sort=False):
         pct = 100 * g["shift"].astype(float)

@@ -24,7 +24,8 @@ A level with ``control_of: <base>`` (``config.yaml``: ``credible_ma2``, ``credib
   measured; ``claims.csv``'s ``verdict_with_systematic`` and ``robust`` use it (``config.yaml``'s
   ``systematic`` values above zero override it).
 - ``convergence.csv``: the reference against its refinement (``refines``): :func:`convergence_check`.
-- ``health.csv``: per case the mass the particles' mass correction puts back (relative to the pipe's
+- ``health.csv``: per case the mass the particles' mass correction puts back, negative where it takes
+  mass out (relative to the pipe's
   fluid mass and to the mass through the pipe) and the share of samples at the density floor, the
   paper's method (``base``) beside the reference (the control labelled ``reference``).
 - ``unstable.csv``: the runs of ``base`` that ended unstable, rerun by a level with ``unstable_of:
@@ -54,7 +55,7 @@ from .claims import evaluate_claims
 from .convergence import profile_distance
 from .document_sections import table_of
 from .equations import relative_href
-from .health import read_flow_rate, read_json, mass_corrected_rel, mass_corrected_throughflow
+from .health import read_flow_rate, read_json, mass_corrected_signed, mass_corrected_throughflow
 from .methods import SEED1_FILES, completed_record, stats_values
 from .plotting import plt, save
 from .statistics import aggregate
@@ -62,7 +63,8 @@ from .statistics import aggregate
 UNSTABLE_COLUMNS = ["run", "level", "method", "mach_factor", "base_status", "base_steps", "status", "steps",
                     "simulated_s", "wall_s"]
 CONTROL_COLUMNS = ["claim", "control", "level", "verdict", "baseline", "status", "runs_done", "runs_planned", "missing"]
-SHIFT_COLUMNS = ["control", "case", "observable", "key", "base", "base_ci95", "control_value", "control_ci95", "shift"]
+SHIFT_COLUMNS = ["control", "case", "observable", "key", "base", "base_ci95", "control_value", "control_ci95", "shift",
+                 "sensitivity"]
 CONVERGENCE_COLUMNS = ["case", "observable", "coarse", "coarse_ci95", "fine", "fine_ci95", "rel_diff", "status", "figures"]
 HEALTH_COLUMNS = ["case", "level", "status", "mass_corrected_fluid", "mass_corrected_throughflow",
                   "floor_sample_share", "samples"]
@@ -301,14 +303,22 @@ def _observables(run_dir: Path) -> dict[tuple[str, str], tuple[float, float]]:
 
 def shift_rows(config: dict, base: str, root: Path) -> pd.DataFrame:
     """Per control, case and observable: ``base``'s value and the control's on the same packings
-    (one packing: seed 1 of both; all packings: the combined records) and the shift."""
+    (one packing: seed 1 of both; all packings: the combined records; a case of a several-packing
+    control with only some packings run: packing 1 of both, or nothing while packing 1 is missing)
+    and the shift."""
     rows = []
     for lvl in control_levels(config, base):
         fid = config["fidelities"][lvl]
-        one = len(level_seeds(fid)) == 1
+        seeds = level_seeds(fid)
+        one = len(seeds) == 1
+        done = set(runs_done(config, lvl, root)[0])
         for case in level_cases(config, lvl):
             seeded = config["cases"][case].get("particles") is not None
             sub = "seed1" if (one and seeded) else ""
+            if seeded and not one and not all(f"{case}/seed{k}" in done for k in seeds):
+                if f"{case}/seed{seeds[0]}" not in done:
+                    continue  # no packing of the control to set beside the base's yet
+                sub = f"seed{seeds[0]}"  # the combined record would hold fewer packings than the base's
             bdir = Path(root) / base / "cases" / case / sub
             cdir = Path(root) / lvl / "cases" / case / sub
             b, c = _observables(bdir), _observables(cdir)
@@ -319,16 +329,26 @@ def shift_rows(config: dict, base: str, root: Path) -> pd.DataFrame:
                 rel = obs in ("omega", "profile")
                 shift = (vc - vb) / abs(vb) if rel and vb else (vc - vb)
                 rows.append({"control": control_label(config, lvl), "case": case, "observable": obs, "key": key,
-                             "base": vb, "base_ci95": cb, "control_value": vc, "control_ci95": cc, "shift": shift})
+                             "base": vb, "base_ci95": cb, "control_value": vc, "control_ci95": cc, "shift": shift,
+                             "sensitivity": is_sensitivity(config["cases"][case])})
     return pd.DataFrame(rows, columns=SHIFT_COLUMNS)
+
+
+def is_sensitivity(case: dict) -> bool:
+    """A case no claim's verdict rests on: a suspension with its collisions switched off (bodies free
+    to overlap, ``collisions: false``; claim 14 names it a sensitivity only)."""
+    return case.get("particles") is not None and case.get("collisions", True) is False
 
 
 def systematic_from_shifts(shifts: pd.DataFrame) -> dict:
     """The largest |shift| per observable (the systematic term of the verdict rule) and where it was
     measured: ``{"terms": {omega_rel, angle_deg, fraction_abs, profile_rel_l2}, "figures": {...}}``;
     an observable with no shift measured is 0 and says so. The profile's term comes from the particle
-    cases only when there are any (the particle-free flows carry the wall's own error)."""
+    cases only when there are any (the particle-free flows carry the wall's own error). Sensitivity
+    cases (:func:`is_sensitivity`) enter no verdict, so they set no term."""
     terms, figures = {}, {}
+    if len(shifts):
+        shifts = shifts[~shifts["sensitivity"].astype(bool)]
     for obs, key in SYSTEMATIC_OF.items():
         sub = shifts[shifts["observable"] == obs] if len(shifts) else shifts
         if obs == "profile" and len(sub) and (~sub["case"].str.startswith("flow")).any():
@@ -425,9 +445,9 @@ def density_floor(run_dir: Path) -> float | None:
 
 
 def run_health_figures(run_dir: Path) -> dict:
-    """Mass put back by the mass correction (of the fluid mass; of the mass through the pipe) and
-    the share of samples with a node at the run's density floor (:func:`density_floor`; 0 without
-    a floor), of one run (NaN where not recorded)."""
+    """Net mass put back by the mass correction, negative where it took mass out (of the fluid mass;
+    of the mass through the pipe) and the share of samples with a node at the run's density floor
+    (:func:`density_floor`; 0 without a floor), of one run (NaN where not recorded)."""
     s = read_json(Path(run_dir) / "summary.json")
     if s is None:
         return {"status": "not run"}
@@ -438,8 +458,10 @@ def run_health_figures(run_dir: Path) -> dict:
         n = int(len(dev))
         floor = density_floor(run_dir)
         share = 0.0 if floor is None else float((dev >= (1.0 - floor) - 1e-9).mean())
-    return {"status": s.get("status"), "mass_corrected_fluid": mass_corrected_rel(s),
-            "mass_corrected_throughflow": mass_corrected_throughflow(s), "floor_sample_share": share, "samples": n}
+    signed = mass_corrected_signed(s)
+    return {"status": s.get("status"), "mass_corrected_fluid": signed,
+            "mass_corrected_throughflow": math.copysign(mass_corrected_throughflow(s), signed),
+            "floor_sample_share": share, "samples": n}
 
 
 def health_rows(config: dict, base: str, root: Path) -> pd.DataFrame:
