@@ -64,10 +64,10 @@ def _facts() -> dict[str, str]:
                                     f"{len(con)} contradicted ({ids(con)[:2]}")
     facts["claims.csv inconclusive"] = f"{len(inc)} inconclusive ({ids(inc)})"
     clean = _listed(claims, "verdict_without_flagged", "reproduced")
-    facts["verdict_without_flagged"] = (f"without the flagged cases only claim {ids(clean)} stays reproduced"
+    facts["verdict_without_flagged"] = (f"without the flagged cases only claim {ids(clean)} is reproduced"
                                         if len(clean) == 1 else
-                                        f"without the flagged cases only claims {' and '.join(map(str, clean))} "
-                                        "stay reproduced")
+                                        f"without the flagged cases only claims {ids(clean[:-1])} and {clean[-1]} "
+                                        "are reproduced")
     differ = _listed(claims, "same_under_both_methods", "no")
     facts["same_under_both_methods"] = f"claims {' and '.join(map(str, differ))} change with the method"
     # the contradicted claim is the cube-cylinder comparison the README names
