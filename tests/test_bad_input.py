@@ -595,6 +595,25 @@ def test_snakemake_refuses_a_bad_config_with_one_line_before_any_job(tmp_path):
     assert (_tree(ROOT / "results") if (ROOT / "results").exists() else {}) == before
 
 
+def test_a_target_of_another_level_without_its_fidelity_is_refused_naming_the_fix_and_plans_nothing():
+    """The level-wide rules gather the configured level's cases: a table of another level asked for by
+    its path alone would plan that level's runs from the wrong list (it did: scene files appeared)."""
+    if shutil.which("snakemake", path=str(Path(sys.executable).parent)) is None:
+        pytest.skip("snakemake not installed beside this interpreter")
+    before = _tree(ROOT / "results")
+    res = subprocess.run([str(Path(sys.executable).parent / "snakemake"), "-n", "--nolock",
+                          "results/credible_dx2/tables/run_health.csv"], cwd=ROOT, capture_output=True, text=True,
+                         timeout=300)
+    assert res.returncode != 0
+    out = res.stdout + res.stderr
+    assert "--config fidelity=credible_dx2" in out and "rule simulate_" not in out
+    assert _tree(ROOT / "results") == before
+    ok = subprocess.run([str(Path(sys.executable).parent / "snakemake"), "-n", "--nolock", "--config",
+                         "fidelity=credible_dx2", "--", "results/credible_dx2/tables/run_health.csv"], cwd=ROOT,
+                        capture_output=True, text=True, timeout=300)
+    assert ok.returncode == 0, ok.stderr[-2000:]
+
+
 # -- guard messages name the likeliest cause ----------------------------------------------------
 
 def test_guard_blames_the_wall_film_for_a_failure_at_a_wall_node_not_the_mach_number():

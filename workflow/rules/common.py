@@ -77,6 +77,18 @@ class Pipeline:
         self.seeded_levels = seeded_levels
         self._checked: dict[tuple[str, str], CheckedScene] = {}
 
+    def level_files(self, pattern: str, **lists):
+        """Input function of a rule that gathers a whole level (tables, figures, claims): ``pattern``
+        expanded over ``lists`` (this workflow's level's cases or runs) for the target's ``fidelity``.
+        Those lists are the configured level's, so a target of another level is an error naming the
+        fix, never a plan over the wrong cases."""
+        def files(w):
+            if w.fidelity != self.fidelity:
+                raise ValueError(f"results/{w.fidelity}/ is level {w.fidelity!r}, but this workflow builds level "
+                                 f"{self.fidelity!r} (its cases and runs): run it with `--config fidelity={w.fidelity}`")
+            return expand(pattern, fidelity=w.fidelity, **lists)
+        return files
+
     # -- a case's scene ----------------------------------------------------------------------------
     def checked(self, level: str, run: str) -> CheckedScene:
         """The run's scene at ``level``, built, validated and derived on first use only; raises

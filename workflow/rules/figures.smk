@@ -69,9 +69,9 @@ rule tables:
         "../envs/lbmpipe.yaml"
     input:
         # the cases and runs present under new_runs=none (Snakefile); the benchmarks are read if present
-        stats=expand("results/{{fidelity}}/cases/{case}/stats.json", case=ACTIVE_PARTICLE_CASES),
-        summaries=expand("results/{{fidelity}}/cases/{case}/summary.json", case=ACTIVE_CASES),
-        run_summaries=expand("results/{{fidelity}}/cases/{run}/summary.json", run=ACTIVE_RUNS),
+        stats=PIPE.level_files("results/{fidelity}/cases/{case}/stats.json", case=ACTIVE_PARTICLE_CASES),
+        summaries=PIPE.level_files("results/{fidelity}/cases/{case}/summary.json", case=ACTIVE_CASES),
+        run_summaries=PIPE.level_files("results/{fidelity}/cases/{run}/summary.json", run=ACTIVE_RUNS),
     output:
         expand("results/{{fidelity}}/tables/{table}.csv", table=[t for t in TABLES if t != "runtime"]),
         runtime=report("results/{fidelity}/tables/runtime.csv", caption="../report/runtime.rst", category="Run time"),
@@ -88,7 +88,7 @@ rule figures:
         "../envs/lbmpipe.yaml"
     input:
         tables=expand("results/{{fidelity}}/tables/{table}.csv", table=TABLES),
-        profiles=expand("results/{{fidelity}}/cases/{case}/profile.csv", case=ACTIVE_CASES),
+        profiles=PIPE.level_files("results/{fidelity}/cases/{case}/profile.csv", case=ACTIVE_CASES),
     output:
         pdf=expand("results/{{fidelity}}/figures/{fig}.pdf", fig=FIGURES),
         png=[report(f"results/{{fidelity}}/figures/{fig}.png", caption=f"../report/{fig}.rst", category="Figures")

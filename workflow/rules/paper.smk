@@ -9,7 +9,7 @@ rule claims:
         # each verdict under the robustness controls and the measured systematic term, where the level has controls
         unpack(PIPE.claims_robustness),
         tables=expand("results/{{fidelity}}/tables/{table}.csv", table=TABLES),
-        profiles=expand("results/{{fidelity}}/cases/{case}/profile.csv", case=ACTIVE_CASES),
+        profiles=PIPE.level_files("results/{fidelity}/cases/{case}/profile.csv", case=ACTIVE_CASES),
         # each verdict under the accurate method too, where a level compares with this one
         method=lambda w: ([f"results/{w.fidelity}/method/claims.csv"] if comparison_level(config, w.fidelity) else []),
     output:
