@@ -48,6 +48,9 @@ rule robustness:
     localrule: True
     input:
         PIPE.robustness_inputs,
+        # this level's own records (the baseline of every verdict, shift and health row): a rerun of its
+        # runs rebuilds the tables and with them this
+        base=expand("results/{{fidelity}}/tables/{table}.csv", table=["angular_velocity", "orientation", "run_health"]),
     params:
         # the control runs present and how each ended: a new one rebuilds this (its inputs are ancient)
         present=PIPE.robustness_present,
