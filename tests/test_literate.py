@@ -513,6 +513,12 @@ def test_claim_findings_render_the_robustness_tables_strings_pending_included(tm
                                                             "reproduced (changes; baseline inconclusive)"],
                   "robust_under_controls": ["yes", "pending: X not (fully) run", "no: changes under X"]}
                  ).to_csv(fid / "tables" / "robustness.csv", index=False)
+    # which columns are interim, and on how many cases, comes from the controls' rows, not the header
+    with pytest.raises(FileNotFoundError, match="controls.csv"):
+        findings.claim_findings(fid)
+    (fid / "robustness").mkdir()
+    pd.DataFrame({"claim": [1, 1, 1], "control": ["X", "Y", "Y, packing 1"], "status": ["holds", "partly run", "interim"],
+                  "interim_cases": [0, 0, 4]}).to_csv(fid / "robustness" / "controls.csv", index=False)
     f = findings.claim_findings(fid)
     assert f["verdicts"] == "reproduced: claims [1](#claim-1), [3](#claim-3); contradicted: claims [2](#claim-2)"
     assert f["contradicted"] == 'claim 2 ("b")'

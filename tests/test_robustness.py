@@ -224,14 +224,22 @@ def test_controls_target_plans_only_the_control_levels_runs_and_nothing_under_ne
 def test_document_section_counts_robust_changed_pending_and_not_covered_apart(tmp_path):
     (tmp_path / "tables").mkdir()
     (tmp_path / "robustness").mkdir()
-    pd.DataFrame({"claim": [1, 2, 3, 4], "verdict": ["reproduced"] * 4, "verdict_with_systematic": ["inconclusive"] * 4,
-                  "under reference": ["reproduced (holds; baseline reproduced)",
-                                      "inconclusive (changes; baseline reproduced)",
-                                      "reproduced (partly run (holds on the runs present); baseline reproduced)",
-                                      "not covered by reference"],
-                  "robust_under_controls": ["yes", "no: changes under reference", "pending: Ma/2 not (fully) run",
-                                            "not covered by any control"]}).to_csv(tmp_path / "tables/robustness.csv",
-                                                                                   index=False)
+    claims = pd.DataFrame({"claim": [1, 2, 3, 4], "verdict": ["reproduced"] * 4,
+                           "verdict_with_systematic": ["inconclusive"] * 4})
+    row = {"control": "reference", "level": "b", "runs_done": 2, "runs_planned": 3, "missing": "", "interim_cases": 0}
+    ma2 = {**row, "control": "Ma/2", "level": "a", "runs_done": 0, "verdict": "", "status": "not run"}
+    controls = pd.DataFrame(
+        [{**row, "claim": 1, "verdict": "reproduced", "baseline": "reproduced", "status": "holds"},
+         {**row, "claim": 2, "verdict": "inconclusive", "baseline": "reproduced", "status": "changes"},
+         {**row, "claim": 3, "verdict": "reproduced", "baseline": "reproduced",
+          "status": "partly run (holds on the runs present)"},
+         {**row, "claim": 4, "verdict": "", "baseline": "reproduced", "status": "not covered by reference"}]
+        + [{**ma2, "claim": 2, "baseline": "reproduced"}]
+        + [{**ma2, "claim": k, "baseline": "reproduced", "status": "not covered by Ma/2"} for k in (1, 3, 4)],
+        columns=R.CONTROL_COLUMNS)
+    controls.to_csv(tmp_path / "robustness/controls.csv", index=False)
+    R.add_to_claims(_write(claims, tmp_path / "claims.csv"), tmp_path / "robustness/controls.csv",
+                    tmp_path / "tables/robustness.csv")
     pd.DataFrame([{"control": "Ma/2", "level": "a", "runs_done": 0, "runs_planned": 3, "core_hours_measured": 0.0,
                    "core_hours_planned": 1.5, "source": "cost model", "claims_changed": ""},
                   {"control": "reference", "level": "b", "runs_done": 2, "runs_planned": 2, "core_hours_measured": 2.0,
@@ -244,9 +252,18 @@ def test_document_section_counts_robust_changed_pending_and_not_covered_apart(tm
     # the document's table: a verdict that holds is said once; a change keeps its baseline; the verdicts
     # with the systematic term stand in the claims summary, not again here
     assert "verdict_with_systematic" not in sec["table"]["columns"]
-    assert [r[2] for r in sec["table"]["rows"]] == ["reproduced (holds)", "inconclusive (changes; baseline reproduced)",
-                                                    "reproduced (partly run (holds on the runs present))",
-                                                    "not covered by reference"]
+    col = sec["table"]["columns"].index("under reference")
+    assert [r[col] for r in sec["table"]["rows"]] == ["reproduced (holds)", "inconclusive (changes; baseline reproduced)",
+                                                      "reproduced (partly run (holds on the runs present))",
+                                                      "not covered by reference"]
+    # the committed table keeps the baseline beside every verdict
+    full = pd.read_csv(tmp_path / "tables/robustness.csv", keep_default_na=False)
+    assert full.loc[0, "under reference"] == "reproduced (holds; baseline reproduced)"
+
+
+def _write(frame: pd.DataFrame, path: Path) -> Path:
+    frame.to_csv(path, index=False)
+    return path
 
 
 def test_the_unstable_runs_name_the_measured_mechanism_not_the_guards_guess():
@@ -298,15 +315,22 @@ def test_a_several_packing_control_with_only_packing_1_run_gives_an_interim_verd
     case complete (no comparison), its first packing alone holds every covered claim against the
     base's packing 1 (labelled interim), and the robustness column stays pending, not "yes"."""
     config, cases = _copied_control(tmp_path, "ref", seeds=3)
-    interim = R.interim_verdicts(config, "credible", tmp_path)
+    rows = R.control_verdicts(config, "credible", tmp_path)
+    assert R.interim_counts(rows) == {"ref, packing 1": 2}
+    interim = rows[rows["interim_cases"] > 0]
     assert set(interim["control"]) == {"ref, packing 1"}
     covered = interim[~interim["status"].str.startswith("not covered")]
     assert 6 in set(covered["claim"])
     assert set(covered["status"]) == {"interim (holds on packing 1 of 2 cases)"}
     assert (covered["verdict"] == covered["baseline"]).all()
-    rows = pd.concat([R.control_verdicts(config, "credible", tmp_path), interim], ignore_index=True)
     robust = R.robust_column({6: "reproduced"}, rows)
     assert robust[6] == "pending: ref"
+    claims = pd.DataFrame({"claim": [6], "verdict": ["reproduced"], "verdict_with_systematic": ["reproduced"]})
+    table = R.robustness_table(claims, rows[rows["claim"] == 6])
+    assert table.loc[0, "under ref, packing 1 (interim, 2 cases)"] == "reproduced (holds; baseline reproduced)"
+    # a controls table of an older lbmpipe (no interim_cases) is refused, not read as having no interim rows
+    with pytest.raises(ValueError, match="interim_cases"):
+        R.robust_column({6: "reproduced"}, rows.drop(columns=["interim_cases"]))
     # its shifts set packing 1 beside the base's packing 1 (identical copies: 0), never the base's three
     shifts = R.shift_rows(config, "credible", tmp_path)
     assert len(shifts) and shifts["shift"].abs().max() == 0.0
@@ -314,7 +338,7 @@ def test_a_several_packing_control_with_only_packing_1_run_gives_an_interim_verd
     for case in cases:
         for k in (2, 3):
             shutil.copytree(ROOT / "results/credible/cases" / case / f"seed{k}", tmp_path / "ref/cases" / case / f"seed{k}")
-    assert R.interim_verdicts(config, "credible", tmp_path).empty
+    assert not R.interim_counts(R.control_verdicts(config, "credible", tmp_path))
 
 
 def test_a_control_run_copied_in_asks_for_its_statistics_and_changes_the_robustness_rules_trigger(tmp_path,

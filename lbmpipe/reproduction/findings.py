@@ -21,6 +21,7 @@ import numpy as np
 import pandas as pd
 
 from .document_sections import fmt, read_table
+from .robustness import column_header, interim_counts, read_controls
 from .robustness import run_health_figures  # one run's mass correction and floor samples, as the controls read them
 
 #: Mean angle between a randomly (isotropically) oriented axis and the pipe axis, folded into
@@ -86,6 +87,12 @@ def claim_findings(fid_dir: Path) -> dict | None:
     controls = [c for c in rob.columns if c.startswith("under ")]
     if not controls:  # a level without robustness controls has nothing to say about them
         return out
+    controls_csv = fid_dir / "robustness" / "controls.csv"
+    if not controls_csv.is_file():
+        raise FileNotFoundError(f"{controls_csv} is missing though tables/robustness.csv names controls: rebuild "
+                                "both with snakemake --forcerun robustness")
+    # a several-packing control on its first packing alone while the others run (robustness.INTERIM)
+    interim = {column_header(label, n): (label, n) for label, n in interim_counts(read_controls(controls_csv)).items()}
     per_control = []
     for c in controls:
         cells = rob[c].astype(str)
@@ -95,11 +102,8 @@ def claim_findings(fid_dir: Path) -> dict | None:
         holds, changes = having("(holds;"), having("(changes;")
         # a partly run control: the verdicts on its runs present, pending until it is complete
         agree, differ = having("(partly run (holds"), having("(partly run (changes")
-        # a several-packing control on its first packing alone while the others run (robustness.INTERIM):
-        # its header "under <control>, packing 1 (interim, N cases)", its cells "<verdict> (holds; ...)"
-        interim = c.endswith(" cases)") and " (interim, " in c
-        i_agree, i_differ = (holds, changes) if interim else ([], [])
-        if interim:
+        i_agree, i_differ = (holds, changes) if c in interim else ([], [])
+        if c in interim:
             holds = changes = []
         status = sorted({v for v in cells if not v.startswith("not covered") and "(" not in v})
         name = c[len("under "):]
@@ -110,8 +114,8 @@ def claim_findings(fid_dir: Path) -> dict | None:
             per_control.append(f"{name} partly run: on its runs present claims {_links(agree) or 'none'} agree"
                                + (f" and {_links(differ)} differ" if differ else "") + " (pending)")
         elif i_agree or i_differ:
-            name, case_n = name.split(" (interim, ")
-            per_control.append(f"{name.replace(', packing', ' on packing')} alone ({case_n.split()[0]} cases, interim): "
+            name, case_n = interim[c]
+            per_control.append(f"{name.replace(', packing', ' on packing')} alone ({case_n} cases, interim): "
                                f"claims {_links(i_agree) or 'none'} agree"
                                + (f" and {_links(i_differ)} differ" if i_differ else ""))
         elif status:

@@ -15,7 +15,7 @@ A level with ``control_of: <base>`` (``config.yaml``: ``credible_ma2``, ``credib
   present). :func:`robust_column` makes ``robust_under_controls`` of it: ``yes`` when the verdict
   holds under every control that covers it (all of them complete), ``no`` naming the controls that
   change it, ``pending`` naming the controls not (fully) run, ``not covered by any control``. A
-  several-packing control still running also gets rows ``<control>, packing 1`` (:func:`interim_verdicts`):
+  several-packing control still running also gets rows ``<control>, packing 1`` (:func:`control_verdicts`):
   its first packing alone against ``base``'s, a look ahead that never decides robustness.
 - ``shifts.csv``: per control, case and observable, ``base``'s value and the control's (the same
   packings) and the shift: relative for mean |Omega| and the profile distance, in degrees for the
@@ -24,10 +24,9 @@ A level with ``control_of: <base>`` (``config.yaml``: ``credible_ma2``, ``credib
   measured; ``claims.csv``'s ``verdict_with_systematic`` and ``robust`` use it (``config.yaml``'s
   ``systematic`` values above zero override it).
 - ``convergence.csv``: the reference against its refinement (``refines``): :func:`convergence_check`.
-- ``health.csv``: per case the mass the particles' mass correction puts back, negative where it takes
-  mass out (relative to the pipe's
-  fluid mass and to the mass through the pipe) and the share of samples at the density floor, the
-  paper's method (``base``) beside the reference (the control labelled ``reference``).
+- ``health.csv``: per case the mass the particles' mass correction puts back (negative where it
+  takes mass out), relative to the pipe's fluid mass and to the mass through the pipe, and the share
+  of samples at the density floor: ``base`` beside the control labelled ``reference``.
 - ``unstable.csv``: the runs of ``base`` that ended unstable, rerun by a level with ``unstable_of:
   base`` (the reference method): how each ended there (:func:`unstable_rows`).
 - ``cost.csv`` and ``cost_robustness.png``: each control's core-hours (measured from its summaries,
@@ -62,7 +61,8 @@ from .statistics import aggregate
 
 UNSTABLE_COLUMNS = ["run", "level", "method", "mach_factor", "base_status", "base_steps", "status", "steps",
                     "simulated_s", "wall_s"]
-CONTROL_COLUMNS = ["claim", "control", "level", "verdict", "baseline", "status", "runs_done", "runs_planned", "missing"]
+CONTROL_COLUMNS = ["claim", "control", "level", "verdict", "baseline", "status", "runs_done", "runs_planned", "missing",
+                   "interim_cases"]
 SHIFT_COLUMNS = ["control", "case", "observable", "key", "base", "base_ci95", "control_value", "control_ci95", "shift",
                  "sensitivity"]
 CONVERGENCE_COLUMNS = ["case", "observable", "coarse", "coarse_ci95", "fine", "fine_ci95", "rel_diff", "status", "figures"]
@@ -73,6 +73,7 @@ SYSTEMATIC_OF = {"omega": "omega_rel", "angle": "angle_deg", "fraction": "fracti
 #: convergence check (issue 47 item 3): the two finest lattices agree within this, or within their
 #: combined interval, with intervals no wider than ``CONVERGED_MAX_CI``
 CONVERGED_REL, CONVERGED_MAX_CI = 0.05, 0.10
+INTERIM = "interim"  # the status and header word of a first-packing look ahead (control_verdicts)
 
 
 def control_levels(config: dict, base: str) -> list[str]:
@@ -154,15 +155,19 @@ def _covered(row) -> bool:
 
 
 def control_rows(baseline: pd.DataFrame, control: pd.DataFrame, label: str, level: str, done: list[str],
-                 missing: list[str], baseline_present: pd.DataFrame | None = None) -> pd.DataFrame:
+                 missing: list[str], baseline_present: pd.DataFrame | None = None,
+                 interim_cases: int = 0) -> pd.DataFrame:
     """Per claim, the control's verdict beside the baseline's on the same cases and its status
     (module docstring). ``baseline``: the claims on every case the control plans (whether it covers
     a claim); ``control`` and ``baseline_present``: on the control's cases whose runs are all
     present (``baseline_present`` defaults to ``baseline``, a complete control). A partly run
-    control that compares no pair of the claim on its runs present is pending, never "changes"."""
+    control that compares no pair of the claim on its runs present is pending, never "changes".
+    ``interim_cases`` > 0: a first-packing look ahead on that many cases (:func:`control_verdicts`),
+    status ``interim (holds|changes|no comparison on packing 1 of N cases)``."""
     rows = []
     planned = len(done) + len(missing)
     present = baseline if baseline_present is None else baseline_present
+    of = f"on packing 1 of {interim_cases} cases"
     for _, b in baseline.iterrows():
         k = int(b["claim"])
         c = control[control["claim"] == k].iloc[0]
@@ -173,15 +178,18 @@ def control_rows(baseline: pd.DataFrame, control: pd.DataFrame, label: str, leve
         elif not done:
             status = "not run"
         elif not (_covered(bp) and _covered(c)):
-            status = "partly run (no comparison on the runs present)"
+            status = (f"{INTERIM} (no comparison {of})" if interim_cases else
+                      "partly run (no comparison on the runs present)")
         else:
             verdict, base_verdict = str(c["verdict"]), str(bp["verdict"])
             status = "holds" if verdict == base_verdict else "changes"
-            if missing:
+            if interim_cases:
+                status = f"{INTERIM} ({status} {of})"
+            elif missing:
                 status = f"partly run ({status} on the runs present)"
         rows.append({"claim": k, "control": label, "level": level, "verdict": verdict, "baseline": base_verdict,
                      "status": status, "runs_done": len(done), "runs_planned": planned,
-                     "missing": "; ".join(missing)})
+                     "missing": "; ".join(missing), "interim_cases": interim_cases})
     return pd.DataFrame(rows, columns=CONTROL_COLUMNS)
 
 
@@ -194,69 +202,63 @@ def cases_present(config: dict, level: str, done: list[str]) -> list[str]:
 
 
 def control_verdicts(config: dict, base: str, root: Path) -> pd.DataFrame:
-    """:func:`control_rows` for every control of ``base`` (empty without one): the baseline on all
-    the control's cases (coverage) and, beside the control, on its cases present."""
+    """:func:`control_rows` for every control of ``base`` (empty without one), one pass per control
+    level: the baseline on all the control's cases (coverage) and, beside the control, on its cases
+    present. A several-packing control still running (the reference) also gets rows labelled
+    ``<control>, packing 1``: the claims on the first packing alone of every case whose packing-1
+    run is present, beside ``base``'s on the same packings, as the one-packing controls (Ma/2) are
+    judged; a look ahead while the other packings run, never a control (``interim_cases`` > 0)."""
     frames = []
     for lvl in control_levels(config, base):
         cases = level_cases(config, lvl)
         seeds = level_seeds(config["fidelities"][lvl])
         done, missing = runs_done(config, lvl, root)
         present = cases_present(config, lvl, done)
+        label = control_label(config, lvl)
+        first = [c for c in cases if f"{c}/seed{seeds[0]}" in done or c in done] if len(seeds) > 1 and missing else []
         with tempfile.TemporaryDirectory() as work:
-            b = view_claims(config, base, cases, seeds, root, Path(work) / "base")
+            def claims_of(level, of_cases, of_seeds, name):
+                return view_claims(config, level, of_cases, of_seeds, root, Path(work) / name)
+            b = claims_of(base, cases, seeds, "base")
             bp, c = b, b  # a control with no run has no verdict to evaluate (its rows say "not run")
             if present:
-                bp = b if len(present) == len(cases) else view_claims(config, base, present, seeds, root,
-                                                                       Path(work) / "base_present")
-                c = view_claims(config, lvl, present, seeds, root, Path(work) / "control")
+                bp = b if len(present) == len(cases) else claims_of(base, present, seeds, "base_present")
+                c = claims_of(lvl, present, seeds, "control")
             elif done:  # runs present, no case complete: nothing to compare yet
                 bp = c = b.assign(reason="inputs missing: no case of the control complete", carried_by="no comparison")
-        frames.append(control_rows(b, c, control_label(config, lvl), lvl, done, missing, baseline_present=bp))
+            frames.append(control_rows(b, c, label, lvl, done, missing, baseline_present=bp))
+            if first:
+                frames.append(control_rows(
+                    b, claims_of(lvl, first, seeds[:1], "control_first"), f"{label}, packing {seeds[0]}", lvl,
+                    [r for r in done if split_run(r)[1] in (None, seeds[0])], [],
+                    baseline_present=claims_of(base, first, seeds[:1], "base_first"), interim_cases=len(first)))
     return pd.concat(frames, ignore_index=True) if frames else pd.DataFrame(columns=CONTROL_COLUMNS)
 
 
-INTERIM = "interim"
+def interim_counts(controls: pd.DataFrame) -> dict[str, int]:
+    """The interim labels of a controls table and the cases each compares (``interim_cases`` > 0); a
+    table without the column is an error (written before the column existed: rebuild it)."""
+    if "interim_cases" not in controls:
+        raise ValueError("controls.csv has no 'interim_cases' column (written by an older lbmpipe): rebuild it with "
+                         "snakemake --forcerun robustness")
+    n = pd.to_numeric(controls["interim_cases"], errors="raise").astype(int)
+    return {str(lbl): int(k) for lbl, k in zip(controls["control"], n) if k > 0}
 
 
-def interim_verdicts(config: dict, base: str, root: Path) -> pd.DataFrame:
-    """For a partly run control with several packings per case (the reference): the claims on the
-    first packing alone of every case whose packing-1 run is present, beside ``base``'s on the same
-    packings, as the one-packing controls (Ma/2) are judged. Labelled ``<control>, packing 1``
-    with status ``interim (holds|changes on packing 1 of N cases)``: a look ahead while the other
-    packings run, never a control (:func:`robust_column` leaves it out)."""
-    frames = []
-    for lvl in control_levels(config, base):
-        seeds = level_seeds(config["fidelities"][lvl])
-        done, missing = runs_done(config, lvl, root)
-        if len(seeds) < 2 or not missing:
-            continue
-        first = [c for c in level_cases(config, lvl)
-                 if f"{c}/seed{seeds[0]}" in done or c in done]
-        if not first:
-            continue
-        cases = level_cases(config, lvl)
-        label = f"{control_label(config, lvl)}, packing {seeds[0]}"
-        with tempfile.TemporaryDirectory() as work:
-            b = view_claims(config, base, cases, seeds, root, Path(work) / "base")
-            bp = view_claims(config, base, first, [seeds[0]], root, Path(work) / "base_first")
-            c = view_claims(config, lvl, first, [seeds[0]], root, Path(work) / "control_first")
-        rows = control_rows(b, c, label, lvl, [r for r in done if split_run(r)[1] in (None, seeds[0])], [],
-                            baseline_present=bp)
-        of = f"on packing {seeds[0]} of {len(first)} cases"
-        rows["status"] = [s if s.startswith("not covered") else
-                          f"{INTERIM} ({s} {of})" if s in ("holds", "changes") else
-                          f"{INTERIM} (no comparison {of})" for s in rows["status"]]
-        frames.append(rows)
-    return pd.concat(frames, ignore_index=True) if frames else pd.DataFrame(columns=CONTROL_COLUMNS)
+def column_header(label: str, interim_cases: int = 0) -> str:
+    """The robustness table's column of a control: ``under <label>``, and for an interim look ahead
+    ``under <label> (interim, N cases)``."""
+    return f"under {label}" + (f" ({INTERIM}, {interim_cases} cases)" if interim_cases else "")
 
 
 def robust_column(base_verdicts: dict[int, str], controls: pd.DataFrame) -> dict[int, str]:
     """``robust_under_controls`` per claim from :func:`control_rows`' table (module docstring): a
-    verdict changes only under a complete control; under one partly run it is pending."""
+    verdict changes only under a complete control; under one partly run it is pending; the interim
+    rows never count."""
+    interim = interim_counts(controls)
     out = {}
     for k, verdict in base_verdicts.items():
-        rows = controls[controls["claim"] == k] if len(controls) else controls
-        rows = rows[~rows["status"].astype(str).str.startswith(INTERIM)] if len(rows) else rows
+        rows = controls[(controls["claim"] == k) & ~controls["control"].isin(list(interim))] if len(controls) else controls
         covering = rows[~rows["status"].astype(str).str.startswith("not covered")] if len(rows) else rows
         if not len(covering):
             out[k] = "not covered by any control"
@@ -622,9 +624,6 @@ def write(config: dict, base: str, root: Path, out_dir: Path) -> dict:
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     controls = control_verdicts(config, base, root)
-    interim = interim_verdicts(config, base, root)
-    if len(interim):
-        controls = pd.concat([controls, interim], ignore_index=True)
     shifts = shift_rows(config, base, root)
     measured = systematic_from_shifts(shifts)
     conv = convergence_rows(config, base, root)
@@ -647,28 +646,37 @@ def write(config: dict, base: str, root: Path, out_dir: Path) -> dict:
     return summary
 
 
-def robustness_table(claims: pd.DataFrame, controls: pd.DataFrame) -> pd.DataFrame:
-    """One row per claim: the level's verdict, one column per control (its verdict, or its status
-    when it has none: not covered / not run), and ``robust_under_controls``."""
+def robustness_table(claims: pd.DataFrame, controls: pd.DataFrame, short: bool = False) -> pd.DataFrame:
+    """One row per claim: the level's verdict, per control (:func:`column_header`) its verdict with its
+    status and the baseline's (or its status alone: not covered / not run), ``robust_under_controls``.
+    ``short`` (the document): a verdict that holds drops the baseline, the same verdict."""
     out = claims[["claim", "verdict", "verdict_with_systematic"]].copy()
+    interim = interim_counts(controls)
     for label in (list(dict.fromkeys(controls["control"])) if len(controls) else []):
         sub = controls[controls["control"] == label].set_index("claim")
 
-        interim = sub["status"].astype(str).str.startswith(INTERIM)
-
-        def cell(k, sub=sub, interim=interim.any()):
+        def cell(k, sub=sub, interim=label in interim):
             r = sub.loc[k]
             s = str(r["status"])
-            if interim and s.startswith(INTERIM):  # "interim (holds on packing 1 of N cases)" -> "holds"
-                s = s[len(INTERIM) + 2:].split(" on packing")[0]
-            return s if s.startswith(("not covered", "not run")) or not r["verdict"] else f"{r['verdict']} ({s}; baseline {r['baseline']})"
-        head = f"under {label}"
-        if interim.any():  # the case count once, in the header: "under reference, packing 1 (interim, 12 cases)"
-            head += f" ({INTERIM}, {str(sub.loc[interim, 'status'].iloc[0]).split(' of ')[-1].rstrip(')')})"
-        out[head] = out["claim"].map(cell)
+            if s.startswith(("not covered", "not run")) or not r["verdict"]:
+                return s
+            if interim:  # judged on the rows' own verdicts, the status string is for the reader
+                s = "holds" if r["verdict"] == r["baseline"] else "changes"
+            if short and r["verdict"] == r["baseline"]:
+                return f"{r['verdict']} ({s})"
+            return f"{r['verdict']} ({s}; baseline {r['baseline']})"
+        out[column_header(label, interim.get(label, 0))] = out["claim"].map(cell)
     out["robust_under_controls"] = out["claim"].map(robust_column(dict(zip(claims["claim"], claims["verdict"])),
                                                                   controls))
     return out
+
+
+def read_controls(controls_csv: Path) -> pd.DataFrame:
+    """``controls.csv`` as written by :func:`write` (an empty table where the level has no controls)."""
+    try:
+        return pd.read_csv(controls_csv, dtype={"verdict": str, "baseline": str, "missing": str}, keep_default_na=False)
+    except (OSError, pd.errors.EmptyDataError):
+        return pd.DataFrame(columns=CONTROL_COLUMNS)
 
 
 def add_to_claims(claims_csv: Path, controls_csv: Path, table_csv: Path) -> pd.DataFrame:
@@ -676,10 +684,7 @@ def add_to_claims(claims_csv: Path, controls_csv: Path, table_csv: Path) -> pd.D
     ``status_under_<control>`` and ``robust_under_controls``) and write the table
     (:func:`robustness_table`) to ``table_csv``."""
     claims = pd.read_csv(claims_csv)
-    try:
-        controls = pd.read_csv(controls_csv, dtype={"verdict": str, "missing": str}, keep_default_na=False)
-    except (OSError, pd.errors.EmptyDataError):
-        controls = pd.DataFrame(columns=CONTROL_COLUMNS)
+    controls = read_controls(controls_csv)
     for label in (list(dict.fromkeys(controls["control"])) if len(controls) else []):
         sub = controls[controls["control"] == label].set_index("claim")
         claims[f"verdict_under_{label}"] = claims["claim"].map(sub["verdict"])
@@ -780,10 +785,8 @@ def robustness_section(fid_dir: Path, out_dir: Path) -> dict | None:
     fig = rob / "cost_robustness.png"
     # shown: a cell that holds drops its baseline (the same verdict); the verdicts with the systematic
     # term are in the claims summary (``tables/robustness.csv`` keeps every column)
-    shown = table.drop(columns=["verdict_with_systematic"], errors="ignore")
-    for c in [c for c in shown.columns if c.startswith("under ")]:
-        shown[c] = shown[c].astype(str).str.replace(r"^(\S+) \(((?:partly run \()?holds[^;]*); baseline \1\)$",
-                                                    r"\1 (\2)", regex=True)
+    shown = robustness_table(table, read_controls(rob / "controls.csv"), short=True)
+    shown = shown.drop(columns=["verdict_with_systematic"])
     health = read("health.csv")
     conv = read("convergence.csv")
     return {"table": table_of(shown), "counts": counts, "cost": table_of(cost_show),
