@@ -254,8 +254,8 @@ def test_document_section_counts_robust_changed_pending_and_not_covered_apart(tm
     assert "verdict_with_systematic" not in sec["table"]["columns"]
     col = sec["table"]["columns"].index("under reference")
     assert [r[col] for r in sec["table"]["rows"]] == ["reproduced (holds)", "inconclusive (changes; baseline reproduced)",
-                                                      "reproduced (partly run (holds on the runs present))",
-                                                      "not covered by reference"]
+                                                      "reproduced (holds so far)", "–"]
+    assert [r[sec["table"]["columns"].index("under Ma/2")] for r in sec["table"]["rows"]] == ["–", "not run", "–", "–"]
     # the committed table keeps the baseline beside every verdict
     full = pd.read_csv(tmp_path / "tables/robustness.csv", keep_default_na=False)
     assert full.loc[0, "under reference"] == "reproduced (holds; baseline reproduced)"
@@ -328,6 +328,16 @@ def test_a_several_packing_control_with_only_packing_1_run_gives_an_interim_verd
     claims = pd.DataFrame({"claim": [6], "verdict": ["reproduced"], "verdict_with_systematic": ["reproduced"]})
     table = R.robustness_table(claims, rows[rows["claim"] == 6])
     assert table.loc[0, "under ref, packing 1 (interim, 2 cases)"] == "reproduced (holds; baseline reproduced)"
+    short = R.robustness_table(claims, rows[rows["claim"] == 6], short=True)  # the document's cells
+    assert (short.loc[0, "under ref"], short.loc[0, "under ref, packing 1 (interim, 2 cases)"]) == (
+        "no pair yet", "reproduced (holds)")
+    # a claim with no pair on one packing (claim 9): the interim look has none to wait for
+    none = pd.DataFrame([{"claim": 9, "control": "ref", "verdict": "", "baseline": "inconclusive", "interim_cases": 0,
+                          "status": "partly run (no comparison on the runs present)"},
+                         {"claim": 9, "control": "ref, packing 1", "verdict": "", "baseline": "inconclusive",
+                          "interim_cases": 2, "status": "interim (no comparison on packing 1 of 2 cases)"}],
+                        columns=R.CONTROL_COLUMNS)
+    assert list(R.robustness_table(claims.assign(claim=9), none, short=True).iloc[0, 3:5]) == ["no pair yet", "no pair"]
     # a controls table of an older lbmpipe (no interim_cases) is refused, not read as having no interim rows
     with pytest.raises(ValueError, match="interim_cases"):
         R.robust_column({6: "reproduced"}, rows.drop(columns=["interim_cases"]))

@@ -649,7 +649,8 @@ def write(config: dict, base: str, root: Path, out_dir: Path) -> dict:
 def robustness_table(claims: pd.DataFrame, controls: pd.DataFrame, short: bool = False) -> pd.DataFrame:
     """One row per claim: the level's verdict, per control (:func:`column_header`) its verdict with its
     status and the baseline's (or its status alone: not covered / not run), ``robust_under_controls``.
-    ``short`` (the document): a verdict that holds drops the baseline, the same verdict."""
+    ``short`` (the document; legend in ``paper/reproduction.md.j2``): a verdict that holds drops the
+    baseline, "so far" (partly run), "no pair (yet)" (no comparison), "–" (not covered)."""
     out = claims[["claim", "verdict", "verdict_with_systematic"]].copy()
     interim = interim_counts(controls)
     for label in (list(dict.fromkeys(controls["control"])) if len(controls) else []):
@@ -657,14 +658,13 @@ def robustness_table(claims: pd.DataFrame, controls: pd.DataFrame, short: bool =
 
         def cell(k, sub=sub, interim=label in interim):
             r = sub.loc[k]
-            s = str(r["status"])
+            s, same = str(r["status"]), r["verdict"] == r["baseline"]
             if s.startswith(("not covered", "not run")) or not r["verdict"]:
-                return s
-            if interim:  # judged on the rows' own verdicts, the status string is for the reader
-                s = "holds" if r["verdict"] == r["baseline"] else "changes"
-            if short and r["verdict"] == r["baseline"]:
-                return f"{r['verdict']} ({s})"
-            return f"{r['verdict']} ({s}; baseline {r['baseline']})"
+                return s if not short else "–" if s.startswith("not covered") else s if s == "not run" else \
+                    "no pair" + ("" if interim else " yet")  # the interim look has no other packings to wait for
+            word = ("holds" if same else "changes") + (" so far" if short and s.startswith("partly run") else "")
+            s = word if short or interim else s  # interim: judged on the rows' verdicts, the status is for the reader
+            return f"{r['verdict']} ({s})" if short and same else f"{r['verdict']} ({s}; baseline {r['baseline']})"
         out[column_header(label, interim.get(label, 0))] = out["claim"].map(cell)
     out["robust_under_controls"] = out["claim"].map(robust_column(dict(zip(claims["claim"], claims["verdict"])),
                                                                   controls))
