@@ -259,6 +259,10 @@ def test_document_section_counts_robust_changed_pending_and_not_covered_apart(tm
     # the committed table keeps the baseline beside every verdict
     full = pd.read_csv(tmp_path / "tables/robustness.csv", keep_default_na=False)
     assert full.loc[0, "under reference"] == "reproduced (holds; baseline reproduced)"
+    # a table that names controls without their rows is an error, not a section without them
+    (tmp_path / "robustness/controls.csv").unlink()
+    with pytest.raises(FileNotFoundError, match="controls.csv"):
+        R.robustness_section(tmp_path, tmp_path)
 
 
 def _write(frame: pd.DataFrame, path: Path) -> Path:

@@ -87,12 +87,9 @@ def claim_findings(fid_dir: Path) -> dict | None:
     controls = [c for c in rob.columns if c.startswith("under ")]
     if not controls:  # a level without robustness controls has nothing to say about them
         return out
-    controls_csv = fid_dir / "robustness" / "controls.csv"
-    if not controls_csv.is_file():
-        raise FileNotFoundError(f"{controls_csv} is missing though tables/robustness.csv names controls: rebuild "
-                                "both with snakemake --forcerun robustness")
     # a several-packing control on its first packing alone while the others run (robustness.INTERIM)
-    interim = {column_header(label, n): (label, n) for label, n in interim_counts(read_controls(controls_csv)).items()}
+    rows = read_controls(fid_dir / "robustness" / "controls.csv", required=True)
+    interim = {column_header(label, n): (label, n) for label, n in interim_counts(rows).items()}
     per_control = []
     for c in controls:
         cells = rob[c].astype(str)

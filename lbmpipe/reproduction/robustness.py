@@ -204,10 +204,9 @@ def cases_present(config: dict, level: str, done: list[str]) -> list[str]:
 def control_verdicts(config: dict, base: str, root: Path) -> pd.DataFrame:
     """:func:`control_rows` for every control of ``base`` (empty without one), one pass per control
     level: the baseline on all the control's cases (coverage) and, beside the control, on its cases
-    present. A several-packing control still running (the reference) also gets rows labelled
-    ``<control>, packing 1``: the claims on the first packing alone of every case whose packing-1
-    run is present, beside ``base``'s on the same packings, as the one-packing controls (Ma/2) are
-    judged; a look ahead while the other packings run, never a control (``interim_cases`` > 0)."""
+    present. A several-packing control still running (the reference) also gets rows ``<control>, packing
+    1``: the claims on packing 1 alone of every case whose packing-1 run is present, beside ``base``'s on
+    the same packings (as Ma/2 is judged); a look ahead, never a control (``interim_cases`` > 0)."""
     frames = []
     for lvl in control_levels(config, base):
         cases = level_cases(config, lvl)
@@ -236,8 +235,8 @@ def control_verdicts(config: dict, base: str, root: Path) -> pd.DataFrame:
 
 
 def interim_counts(controls: pd.DataFrame) -> dict[str, int]:
-    """The interim labels of a controls table and the cases each compares (``interim_cases`` > 0); a
-    table without the column is an error (written before the column existed: rebuild it)."""
+    """The interim labels of a controls table and the cases each compares (``interim_cases`` > 0); a table
+    without the column (an older lbmpipe's) is an error."""
     if "interim_cases" not in controls:
         raise ValueError("controls.csv has no 'interim_cases' column (written by an older lbmpipe): rebuild it with "
                          "snakemake --forcerun robustness")
@@ -246,15 +245,13 @@ def interim_counts(controls: pd.DataFrame) -> dict[str, int]:
 
 
 def column_header(label: str, interim_cases: int = 0) -> str:
-    """The robustness table's column of a control: ``under <label>``, and for an interim look ahead
-    ``under <label> (interim, N cases)``."""
+    """A control's column in the robustness table: ``under <label>`` (``... (interim, N cases)``: interim)."""
     return f"under {label}" + (f" ({INTERIM}, {interim_cases} cases)" if interim_cases else "")
 
 
 def robust_column(base_verdicts: dict[int, str], controls: pd.DataFrame) -> dict[int, str]:
-    """``robust_under_controls`` per claim from :func:`control_rows`' table (module docstring): a
-    verdict changes only under a complete control; under one partly run it is pending; the interim
-    rows never count."""
+    """``robust_under_controls`` per claim from :func:`control_rows`' table (module docstring): a verdict
+    changes only under a complete control; under one partly run it is pending; interim rows never count."""
     interim = interim_counts(controls)
     out = {}
     for k, verdict in base_verdicts.items():
@@ -671,8 +668,11 @@ def robustness_table(claims: pd.DataFrame, controls: pd.DataFrame, short: bool =
     return out
 
 
-def read_controls(controls_csv: Path) -> pd.DataFrame:
-    """``controls.csv`` as written by :func:`write` (an empty table where the level has no controls)."""
+def read_controls(controls_csv: Path, required: bool = False) -> pd.DataFrame:
+    """``controls.csv`` (:func:`write`): empty where the level has none; an error if ``required`` and missing."""
+    if required and not Path(controls_csv).is_file():
+        raise FileNotFoundError(f"{controls_csv} is missing though tables/robustness.csv names controls: rebuild "
+                                "both with snakemake --forcerun robustness")
     try:
         return pd.read_csv(controls_csv, dtype={"verdict": str, "baseline": str, "missing": str}, keep_default_na=False)
     except (OSError, pd.errors.EmptyDataError):
@@ -785,8 +785,8 @@ def robustness_section(fid_dir: Path, out_dir: Path) -> dict | None:
     fig = rob / "cost_robustness.png"
     # shown: a cell that holds drops its baseline (the same verdict); the verdicts with the systematic
     # term are in the claims summary (``tables/robustness.csv`` keeps every column)
-    shown = robustness_table(table, read_controls(rob / "controls.csv"), short=True)
-    shown = shown.drop(columns=["verdict_with_systematic"])
+    controls = read_controls(rob / "controls.csv", required=any(c.startswith("under ") for c in table.columns))
+    shown = robustness_table(table, controls, short=True).drop(columns=["verdict_with_systematic"])
     health = read("health.csv")
     conv = read("convergence.csv")
     return {"table": table_of(shown), "counts": counts, "cost": table_of(cost_show),
