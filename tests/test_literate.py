@@ -611,7 +611,7 @@ def test_the_methods_effect_on_rotation_is_the_median_and_range_of_each_controls
     text = findings.method_sensitivity(tmp_path)
     # the angle shift (degrees) is not a rotation rate, the sensitivity case s no verdict's case;
     # Ma/2's median of -10, -30, +4 % is -10 %
-    assert text.endswith("Ma/2 -10 % (-30 to +4 %, 2 cases); gap +50 % (+50 to +50 %, 1 cases).")
+    assert text.endswith("Ma/2 -10 % (-30 to +4 %, 2 cases); gap +50 % (+50 to +50 %, 1 case).")
     assert findings.method_sensitivity(tmp_path / "none") is None
     # a shifts table that predates the column is an error, not a quiet inclusion
     pd.read_csv(tmp_path / "robustness" / "shifts.csv").drop(columns="sensitivity").to_csv(

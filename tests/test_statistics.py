@@ -584,4 +584,36 @@ def test_half_window_level_takes_every_runs_second_half_and_says_when_a_run_lack
     (d / "stats.json").write_text(json.dumps(s))
     assert set(HW.second_half_verdicts(tmp_path / "lvl", config)) == {
         "not available: 1 of 1 runs lack the second-half statistics (made before the compact series; rerun them, "
-        "e.g. c)"}
+        "e.g. c); no comparison on the 0 cases complete"}
+
+
+def test_half_window_look_ahead_judges_each_claim_on_the_cases_whose_runs_all_have_their_second_half(tmp_path):
+    # three cylinder cases (Re 26 and 9.4 at 30 %, Re 26 at 50 %); the 50 % run lacks its second half
+    import shutil
+
+    from lbmpipe.reproduction import half_window as HW
+    from lbmpipe.reproduction.claims import evaluate_claims
+
+    cases = {"a": CYL_CFG, "b": {**CYL_CFG, "reynolds": 9.4},
+             "c": {**CYL_CFG, "particles": {**CYL_CFG["particles"], "concentration": 0.5}}}
+    for i, (name, cfg) in enumerate(cases.items()):
+        _long_case(tmp_path / "work" / name, frozen=False, seed=3 + i)
+        shutil.copytree(tmp_path / "work" / name / "c", tmp_path / "lvl" / "cases" / name)
+        S.write_case_outputs(name, tmp_path / "lvl" / "cases" / name, cfg)
+    s = json.loads((tmp_path / "lvl" / "cases" / "c" / "stats.json").read_text())
+    del s["second_half"]
+    (tmp_path / "lvl" / "cases" / "c" / "stats.json").write_text(json.dumps(s))
+    verdicts = HW.second_half_verdicts(tmp_path / "lvl", {"cases": cases})
+    assert all(v.startswith("not available: 1 of 3 runs lack the second-half statistics") for v in verdicts)
+    # on a and b alone: the second halves' verdict beside the full windows', each as the level of a and b gives it
+    ab = {"cases": {k: cases[k] for k in "ab"}}
+    half = HW.half_window_level(tmp_path / "lvl", ab, tmp_path / "half")
+    full = HW.half_window_level(tmp_path / "lvl", ab, tmp_path / "full", half_window=False)
+    h, f = (evaluate_claims(d, ab["cases"]).set_index("claim")["verdict"] for d in (half, full))
+    assert verdicts[1].endswith(f"; on the 2 cases complete: {h[1]} (full window: {f[1]})")
+    # the full-window rebuild of a and b holds their committed statistics
+    av = pd.read_csv(full / "tables" / "angular_velocity.csv").set_index("case")
+    a = json.loads((tmp_path / "lvl" / "cases" / "a" / "stats.json").read_text())
+    assert av.loc["a", "omega_x"] == pytest.approx(a["mean_abs_omega_rad_s"]["x"])
+    # claim 2 compares concentrations: the 30 % cases alone compare nothing of it
+    assert verdicts[2].endswith("; no comparison on the 2 cases complete")

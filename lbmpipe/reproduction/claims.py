@@ -558,6 +558,12 @@ def _robust(verdict: str, with_sys: str) -> str:
     return "yes" if with_sys == verdict else "no"
 
 
+def compares_anything(row) -> bool:
+    """Whether a claim's row of :func:`evaluate_claims` compares anything (not "inputs missing" with
+    no comparison): on a level holding only some cases, whether those cases bear on the claim."""
+    return not (str(row["reason"]).startswith("inputs missing") and str(row["carried_by"]).startswith("no "))
+
+
 def evaluate_claims(fid_dir: Path, config_cases: dict, systematic: dict | None = None) -> pd.DataFrame:
     """The 14 claims of one level (:data:`COLUMNS`): each verdict with its reason, how many
     comparisons carry it, the deciding number, the verdict with the systematic term

@@ -233,9 +233,9 @@ def method_sensitivity(fid_dir: Path) -> str | None:
     om = sh[(sh["observable"] == "omega") & ~sh["sensitivity"].astype(bool)].dropna(subset=["shift"])
     parts = []
     for control, g in om.groupby("control", sort=False):
-        pct = 100 * g["shift"].astype(float)
+        pct, n = 100 * g["shift"].astype(float), g["case"].nunique()
         parts.append(f"{control} {pct.median():+.0f} % ({pct.min():+.0f} to {pct.max():+.0f} %, "
-                     f"{g['case'].nunique()} cases)")
+                     f"{n} case{'' if n == 1 else 's'})")
     if not parts:
         return None
     return ("The method moves the rotation rates: mean |Ω| of the same packings against the paper's method, median "

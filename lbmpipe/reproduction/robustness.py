@@ -50,7 +50,7 @@ from ..scene import Numerics, Scene
 from ..units import derive
 from .cases import case_scene, level_cases, level_runs, level_seeds, run_case, split_run, wall_model
 from .claim_rules import SYSTEMATIC_KEYS
-from .claims import evaluate_claims
+from .claims import compares_anything as _covered, evaluate_claims
 from .convergence import profile_distance
 from .document_sections import table_of
 from .equations import relative_href
@@ -147,11 +147,6 @@ def view_claims(config: dict, level: str, cases: list[str], seeds: list[int], ro
     sub = {c: config["cases"][c] for c in cases}
     d = view(config, level, cases, seeds, root, work)
     return evaluate_claims(d, sub, systematic or {k: 0.0 for k in SYSTEMATIC_KEYS})
-
-
-def _covered(row) -> bool:
-    """Whether a claim compares anything on a view (not 'inputs missing' with no comparison)."""
-    return not (str(row["reason"]).startswith("inputs missing") and str(row["carried_by"]).startswith("no "))
 
 
 def control_rows(baseline: pd.DataFrame, control: pd.DataFrame, label: str, level: str, done: list[str],
