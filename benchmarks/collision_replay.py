@@ -69,19 +69,20 @@ def import_other(root: Path):
     renamed copy in the temporary folder. The copy's folder is named after a hash of the sources
     and kept: numba's cache knows a function by its file's path and time, so a second run against
     the same sources loads the compiled code instead of compiling it again (minutes)."""
-    src = root / "lbmpipe"
-    if not (src / "collisions.py").is_file():
-        raise SystemExit(f"--against {root}: no lbmpipe/particles/collisions.py there (give the root of a checkout)")
+    src, module = root / "lbmpipe", Path("particles", "collisions", "__init__.py")
+    if not (src / module).is_file():
+        raise SystemExit(f"--against {root}: no lbmpipe/{module.parent} package there (give the root of a checkout "
+                         "of this layout)")
     digest = hashlib.sha256()
-    for f in sorted(src.glob("*.py")):
-        digest.update(f.name.encode())
+    for f in sorted(src.rglob("*.py")):
+        digest.update(str(f.relative_to(src)).encode())
         digest.update(f.read_bytes())
     workdir = Path(tempfile.gettempdir()) / "lbmpipe_against" / digest.hexdigest()[:16]
     dst = workdir / "lbmpipe_against"
-    if not (dst / "collisions.py").is_file():
+    if not (dst / module).is_file():
         tmp = Path(tempfile.mkdtemp(dir=workdir.parent if workdir.parent.is_dir() else None))
         shutil.copytree(src, tmp / "lbmpipe_against", ignore=shutil.ignore_patterns("__pycache__"))
-        for f in (tmp / "lbmpipe_against").glob("*.py"):
+        for f in (tmp / "lbmpipe_against").rglob("*.py"):
             text = f.read_text()
             text = re.sub(r"\bfrom lbmpipe(\.| import)", r"from lbmpipe_against\1", text)
             text = re.sub(r"\bimport lbmpipe\.", "import lbmpipe_against.", text)
@@ -90,7 +91,7 @@ def import_other(root: Path):
         (tmp / "lbmpipe_against").rename(dst)  # whole or not at all: a stopped copy is never reused
         shutil.rmtree(tmp, ignore_errors=True)
     sys.path.insert(0, str(workdir))
-    return importlib.import_module("lbmpipe_against.collisions")
+    return importlib.import_module("lbmpipe_against.particles.collisions")
 
 
 def first_calls(mod, data: dict) -> tuple[list, list]:

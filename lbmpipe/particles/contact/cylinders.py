@@ -303,7 +303,9 @@ def _side_side(X1, E1, r1, l1, X2, E2, r2, l2):
 _N_CANDIDATES = 11
 
 
-@njit(cache=True, inline="always")
+# _cyl_candidate and _cylinder_gap are called, not inlined: inlined at their call sites they had the rim
+# solvers typed and optimised a dozen times (a slower cold compile, more memory: benchmarks/README.md)
+@njit(cache=True)
 def _cyl_candidate(k, X1, E1, U1, V1, r1, l1, X2, E2, U2, V2, r2, l2):
     """Candidate k of ``cylinder_gap_exact``, cheapest first: (ok, a on body 1, b on body 2).
     0 side-side; 1, 2 the cap of body 1 / 2; then for the caps facing the other body, and after
@@ -365,7 +367,7 @@ def _cyl_frames(h1, x1, R1, h2, x2, R2):
             (R2[0, 1], R2[1, 1], R2[2, 1]), h2[0], h2[2])
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _cylinder_gap(h1, x1, R1, h2, x2, R2, first):
     """``cylinder_gap_exact`` on tuples: (gap or -1, witness point on 1, witness point on 2, the
     candidate that was certified or -1). The contact of the narrow phase takes its result without
