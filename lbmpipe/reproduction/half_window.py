@@ -25,6 +25,7 @@ import pandas as pd
 
 from . import health as H
 from .angles import ORIENTATION_KINDS
+from .cases import split_run
 from .claims import compares_anything, evaluate_claims
 from .seeds import write_combined
 from .statistics import _jsonable, aggregate, orientation_histograms
@@ -118,7 +119,7 @@ def partial_verdicts(fid_dir: Path, config: dict, missing: list[str], systematic
     beside the full windows of the same cases (``on the K cases complete: <half> (full window: <full>)``),
     or ``no comparison on the K cases complete``; a look ahead while reruns are missing, never the
     level's verdict."""
-    lacking = {run.split("/")[0] for run in missing}
+    lacking = {split_run(run)[0] for run in missing}
     cases = {c: v for c, v in config["cases"].items() if c not in lacking}
     k = sum(1 for c, v in cases.items() if v.get("particles") is not None and (Path(fid_dir) / "cases" / c).exists())
     sub = {**config, "cases": cases}
