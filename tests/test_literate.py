@@ -364,7 +364,7 @@ def test_abstract_claim13_and_fig10_print_one_particle_free_baseline_and_the_par
     e0 = read_profile_error(tmp_path / "cases" / "flow_re26" / "profile.csv")
     abstract = literate.abstract_section(tmp_path, "x", {"cases": cases}, None, [], literate._case_dirs(
         tmp_path, {"cases": cases}), [])
-    assert abstract["poiseuille"] == f"Re 26: {document_sections.fmt(e0)}"
+    assert abstract["poiseuille"] == f"{document_sections.fmt(e0)} at Re 26"
     row = claims.evaluate_claims(tmp_path, cases).set_index("claim").loc[13]
     assert f"e0 = {e0:.3g}" in row["values"]
     (tmp_path / "tables").mkdir()
@@ -461,6 +461,14 @@ def _av(case, shape, conc, omega, edge=None, d=None, length=None, flags="", stat
     return {"case": case, "shape": shape, "edge_mm": edge, "diameter_mm": d, "length_mm": length,
             "concentration": conc, "reynolds": 9.4, "collisions": True, "status": status, "n_particles": 4,
             "omega_x": omega, "omega_y": omega, "omega_z": omega, "flags": flags}
+
+
+def test_a_range_of_measured_ratios_prints_both_ends_to_the_same_significant_digits():
+    assert findings._range([1.3, 5.18]) == "1.30–5.18"
+    assert findings._range([0.0282, 0.078]) == "0.0282–0.0780"
+    assert findings._range([39.9, 62.2], " deg") == "39.9–62.2 deg"
+    assert findings._range([1.0, 2.0]) == "1–2" and findings._range([0.5, 0.5]) == "0.5"
+    assert findings._range([float("nan")]) == "–"
 
 
 def test_physical_results_are_computed_from_the_tables_cubes_against_cylinders_and_random_orientation(tmp_path):

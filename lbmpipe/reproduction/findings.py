@@ -137,7 +137,13 @@ def _range(values, unit: str = "", digits: int = 3) -> str:
     if not v:
         return "–"
     lo, hi = fmt(min(v), digits), fmt(max(v), digits)
-    return (f"{lo}{unit}" if lo == hi else f"{lo}–{hi}{unit}")
+    if lo == hi:
+        return f"{lo}{unit}"
+    # both ends to the same significant digits, trailing zeros kept ("1.30–5.18", not "1.3–5.18")
+    if any("." not in t or "e" in t for t in (lo, hi)):
+        return f"{lo}–{hi}{unit}"
+    lo, hi = (f"{x:#.{digits}g}" for x in (min(v), max(v)))
+    return f"{lo}–{hi}{unit}"
 
 
 def physical_results(fid_dir: Path) -> list[str]:

@@ -199,7 +199,7 @@ def abstract_section(fid_dir: Path, fidelity: str, config: dict, claims, params:
     flow = [n for n, c in (config.get("cases") or {}).items() if not (c or {}).get("particles")]
     # the particle-free baseline, as claim 13 and Fig. 10 compute it (one function, profile_error)
     errors = {n: read_profile_error(Path(fid_dir) / "cases" / n / "profile.csv") for n in flow}
-    poiseuille = [f"{fmt((config['cases'][n] or {}).get('reynolds'))}: {fmt(e)}" for n, e in errors.items()
+    poiseuille = [f"{fmt(e)} at Re {fmt((config['cases'][n] or {}).get('reynolds'))}" for n, e in errors.items()
                   if math.isfinite(e)]
     avg = [averaging_s(cases[n]["summary"], cases[n]["stats"]) for n in particle if n in cases]
     avg = [a for a in avg if math.isfinite(a)]
@@ -217,7 +217,7 @@ def abstract_section(fid_dir: Path, fidelity: str, config: dict, claims, params:
     return {
         "n_claims": fmt(sum(counts.values())),
         "counts": ", ".join(f"{fmt(int(v))} {k}" for k, v in sorted(counts.items(), key=lambda kv: -kv[1])),
-        "poiseuille": "; ".join(f"Re {p}" for p in poiseuille),
+        "poiseuille": " and ".join(poiseuille),
         "lattice": "; ".join(f"Re {p['reynolds']}: dx {p['dx_mm']} mm, dt {p['dt_ms']} ms, τ {p['tau']}, "
                              f"Mach {p['mach']}" for p in lattice),
         "n_particle_cases": fmt(len(particle)),
