@@ -463,6 +463,12 @@ def _av(case, shape, conc, omega, edge=None, d=None, length=None, flags="", stat
             "omega_x": omega, "omega_y": omega, "omega_z": omega, "flags": flags}
 
 
+def test_claim_lists_link_every_claim_and_shorten_three_or_more_in_a_row_to_a_range():
+    assert findings._links(["1", "2", "3", "4", "6", "8", "9", "13"]) == (
+        "[1](#claim-1)–[4](#claim-4), [6](#claim-6), [8](#claim-8), [9](#claim-9), [13](#claim-13)")
+    assert findings._links(["3", "1"]) == "[1](#claim-1), [3](#claim-3)"
+
+
 def test_a_range_of_measured_ratios_prints_both_ends_to_the_same_significant_digits():
     assert findings._range([1.3, 5.18]) == "1.30–5.18"
     assert findings._range([0.0282, 0.078]) == "0.0282–0.0780"

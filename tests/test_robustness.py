@@ -421,6 +421,7 @@ def test_an_unstable_packing_rerun_with_the_reference_method_says_how_each_ended
                                                                              "mechanism": ["checkerboard mode"]}))
     cause = R.unstable_causes(tmp_path / "base")[0]
     assert cause["rerun"] == "accurate at Mach x 0.5 (again): completed after 1000 steps"
+    assert cause["outcome"] == "completed after 1000 steps"
     assert cause["mechanism"] == "checkerboard mode"
     assert cause["rerun_mechanism"] == ""  # the rerun has no diagnosis of its own
     (tmp_path / "again/unstable").mkdir()

@@ -59,7 +59,18 @@ def _verdict_lists(claims: pd.DataFrame) -> dict[str, list[str]]:
 
 
 def _links(nums: list[str]) -> str:
-    return ", ".join(f"[{n}](#claim-{n})" for n in nums)
+    """Claim numbers as links, three or more consecutive ones as a range (``[1](#claim-1)–[4](#claim-4)``)."""
+    def link(n):
+        return f"[{n}](#claim-{n})"
+    if not all(str(n).isdigit() for n in nums):
+        return ", ".join(link(n) for n in nums)
+    runs: list[list[int]] = []
+    for n in sorted(int(n) for n in nums):
+        if runs and n == runs[-1][-1] + 1:
+            runs[-1].append(n)
+        else:
+            runs.append([n])
+    return ", ".join(f"{link(r[0])}–{link(r[-1])}" if len(r) >= 3 else ", ".join(link(n) for n in r) for r in runs)
 
 
 def claim_findings(fid_dir: Path) -> dict | None:

@@ -732,15 +732,16 @@ def unstable_causes(fid_dir: Path) -> list[dict]:
         variants = _variants_said(d)
         case = d.get("case", path.stem)
         mine = [r for r in reruns.itertuples() if str(r.run).split("/seed")[0] == case]
-        again = [f"{r.method} at Mach x {r.mach_factor} ({r.level}): {r.status}"
-                 + (f" after {int(float(r.steps))} steps" if str(r.steps) not in ("", "nan", "None") else "")
-                 for r in mine]
+        ends = [f"{r.status}" + (f" after {int(float(r.steps))} steps" if str(r.steps) not in ("", "nan", "None") else "")
+                for r in mine]
+        again = [f"{r.method} at Mach x {r.mach_factor} ({r.level}): {e}" for r, e in zip(mine, ends)]
         # the rerun's own diagnosis, where it ended unstable too (<level>/unstable/<case>.json)
         there = {r.level: read_json(Path(fid_dir).parent / str(r.level) / "unstable" / f"{case}.json") or {} for r in mine}
         measured = "; ".join(f"{lvl}: " + "; ".join(e["mechanism"])
                              + (f". One change at a time: {_variants_said(e)}" if e.get("variants") else "")
                              for lvl, e in there.items() if e.get("mechanism"))
         out.append({"case": case, "scene": d.get("scene", ""), "rerun": "; ".join(again) or "not rerun",
+                    "outcome": "; ".join(ends) or "not rerun",
                     "rerun_mechanism": measured,
                     "rerun_cause": "; ".join(e["mechanism"][0].split(":")[0] for e in there.values() if e.get("mechanism")),
                     "step": (d.get("committed") or {}).get("steps"),
