@@ -110,11 +110,14 @@ def host() -> dict:
     """The processor the kernels are compiled for, by LLVM's name (``znver4``, ``skylake-avx512``:
     it sets their vector width, and with it the fluid step's cost per node), and the cores the
     machine offers. The run-cost model keeps the runs of each processor apart
-    (``lbmpipe.reproduction.runcost``). No host name."""
+    (``lbmpipe.reproduction.runcost``). ``openblas_coretype``: OpenBLAS's kernel as the environment
+    forces it (``auto``: detected), since it sets the rounding of the step's BLAS calls (the flux
+    correction's dot product among them) and so a run's bits. No host name."""
     import llvmlite.binding as ll
     import numba
 
-    return {"cpu": str(numba.config.CPU_NAME or ll.get_host_cpu_name()), "cores": os.cpu_count()}
+    return {"cpu": str(numba.config.CPU_NAME or ll.get_host_cpu_name()), "cores": os.cpu_count(),
+            "openblas_coretype": os.environ.get("OPENBLAS_CORETYPE") or "auto"}
 
 
 def git_commit() -> str | None:

@@ -257,3 +257,14 @@ def test_lbmpipe_check_predicts_from_the_runs_of_its_own_processor(tmp_path, cap
     line, expected = _check_line(tmp_path, capsys, {**base, "hosts": {host()["cpu"]: here}}, 20.0)
     assert _duration(expected) in line and _duration(expected / 0.9) in line
     assert "median error 7 % given a run's share, 9 % at the median share, on 9 production runs on this processor" in line
+
+
+def test_a_runs_host_record_names_the_blas_kernel_that_rounds_its_flux_dot_product(monkeypatch):
+    # the paper method's bits depend on OpenBLAS's kernel (AVX-512 and Haswell round the flux
+    # correction's dot product differently): the summary says which one the environment forced
+    from lbmpipe.outputs import host
+
+    monkeypatch.setenv("OPENBLAS_CORETYPE", "Haswell")
+    assert host()["openblas_coretype"] == "Haswell"
+    monkeypatch.delenv("OPENBLAS_CORETYPE")
+    assert host()["openblas_coretype"] == "auto"
