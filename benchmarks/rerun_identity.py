@@ -16,6 +16,11 @@ run's statistics with today's code (``series.csv.gz``, ``trajectory.json``, ``st
 ``orientation.csv``, ``last_frame.csv``).
 
     python benchmarks/rerun_identity.py <checkout of the reruns> --level credible [--adopt]
+
+Bits also depend on OpenBLAS's kernel (the flux correction's dot product): the committed runs used an
+AVX-512 one, so on a host whose environment forces ``OPENBLAS_CORETYPE=Haswell`` make the reruns with
+it unset (``env -u OPENBLAS_CORETYPE snakemake ...``); ``summary.json``'s ``host.openblas_coretype``
+says which a run had (benchmarks/README.md, "A run's bits and the BLAS kernel").
 """
 
 from __future__ import annotations
