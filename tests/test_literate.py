@@ -467,6 +467,8 @@ def test_claim_lists_link_every_claim_and_shorten_three_or_more_in_a_row_to_a_ra
     assert findings._links(["1", "2", "3", "4", "6", "8", "9", "13"]) == (
         "[1](#claim-1)–[4](#claim-4), [6](#claim-6), [8](#claim-8), [9](#claim-9), [13](#claim-13)")
     assert findings._links(["3", "1"]) == "[1](#claim-1), [3](#claim-3)"
+    with pytest.raises(ValueError, match="not claim numbers"):
+        findings._links(["1", "3a"])
 
 
 def test_a_range_of_measured_ratios_prints_both_ends_to_the_same_significant_digits():

@@ -583,13 +583,9 @@ def test_every_committed_series_rebuilds_its_runs_committed_statistics_to_round_
         S.write_case_outputs(run, dst, run_case(config, run)[1], config)
         _same_to_round_off(json.loads((dst / "stats.json").read_text()), json.loads((src / "stats.json").read_text()),
                            f"{run}: stats.json")
-        new, old = pd.read_csv(dst / "orientation.csv"), pd.read_csv(src / "orientation.csv")
-        assert list(new.columns) == list(old.columns) and new.shape == old.shape, f"{run}: orientation.csv"
-        for col in old.columns:
-            if pd.api.types.is_float_dtype(old[col]):
-                np.testing.assert_allclose(new[col], old[col], rtol=1e-9, atol=1e-15, err_msg=f"{run}: {col}")
-            else:
-                assert new[col].tolist() == old[col].tolist(), f"{run}: orientation.csv {col}"
+        # floats to round-off; integers, strings, columns and shape exactly
+        pd.testing.assert_frame_equal(pd.read_csv(dst / "orientation.csv"), pd.read_csv(src / "orientation.csv"),
+                                      check_exact=False, rtol=1e-9, atol=1e-15, obj=f"{run}: orientation.csv")
 
 
 def test_half_window_level_takes_every_runs_second_half_and_says_when_a_run_lacks_it(tmp_path):

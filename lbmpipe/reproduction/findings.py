@@ -62,8 +62,9 @@ def _links(nums: list[str]) -> str:
     """Claim numbers as links, three or more consecutive ones as a range (``[1](#claim-1)–[4](#claim-4)``)."""
     def link(n):
         return f"[{n}](#claim-{n})"
-    if not all(str(n).isdigit() for n in nums):
-        return ", ".join(link(n) for n in nums)
+    bad = [n for n in nums if not str(n).isdigit()]
+    if bad:  # claims.csv numbers its claims 1-14; anything else is a broken table, not a label to print
+        raise ValueError(f"claim labels {bad} are not claim numbers: rebuild claims.csv (snakemake --forcerun claims)")
     runs: list[list[int]] = []
     for n in sorted(int(n) for n in nums):
         if runs and n == runs[-1][-1] + 1:
