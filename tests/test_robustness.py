@@ -180,7 +180,7 @@ def test_control_levels_validate_and_each_changes_one_thing_of_credible():
                                                                  "gap 0.5 + lubrication"]
     assert R.reference_level(config, "credible") == "credible_reference"
     fid = config["fidelities"]
-    assert len(level_runs(config, "credible_reference")) == 3 * 12 + 2  # 3 packings on every particle case
+    assert len(level_runs(config, "credible_reference")) == 3 * 13 + 2  # 3 packings on every particle case
     # (d): the scene's contact gap halved and lubrication on, the rest the paper's
     sc = case_scene("cube8_c30_re9.4", config["cases"]["cube8_c30_re9.4"], "credible_gap05", fid["credible_gap05"])
     assert sc["particles"]["collisions"]["contact_gap_dx"] == 0.5
