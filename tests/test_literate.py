@@ -2,6 +2,7 @@
 that implements it, the links stay true, and the document is built from results alone."""
 
 import ast
+import json
 import re
 import shutil
 from pathlib import Path
@@ -634,3 +635,37 @@ def test_the_methods_effect_on_rotation_is_the_median_and_range_of_each_controls
         tmp_path / "robustness" / "shifts.csv", index=False)
     with pytest.raises(ValueError, match="sensitivity"):
         findings.method_sensitivity(tmp_path)
+
+
+def test_provenance_counts_each_levels_commits_names_dirty_runs_and_the_reruns_bit_identity(tmp_path):
+    from lbmpipe.reproduction import provenance as P
+
+    config = {"cases": {"flow": {"reynolds": 9.4},
+                        "cyl": {"reynolds": 9.4, "particles": {"shape": "cylinder", "diameter_mm": 8,
+                                                               "length_mm": 16, "concentration": 0.3}}},
+              "fidelities": {"base": {"seeds": 2}}}
+    cases = tmp_path / "base" / "cases"
+    for run, commit in (("flow", "a1"), ("cyl/seed1", "b2"), ("cyl/seed2", "c3-dirty")):
+        (cases / run).mkdir(parents=True)
+        (cases / run / "summary.json").write_text(json.dumps({"provenance": {"git_commit": commit}}))
+    (tmp_path / "base" / "reruns.csv").write_text(
+        "run,old_commit,new_commit,last_frame_identical,force_identical\n"
+        "cyl/seed1,x9-dirty,b2,False,False\n")
+    text = P.provenance_text(config, ["base"], tmp_path / "base")
+    assert "the 3 runs of the levels in this document come from clean commits but 1, made on a tree" in text
+    assert "`base` 3." in text
+    assert "0 reproduce their first run bit for bit, 1 replace a first run made on a dirty tree" in text
+    assert "2 runs are still their first run" in text
+    # a run that names no commit is an error naming the file, never a run left out
+    (cases / "flow" / "summary.json").write_text(json.dumps({"status": "completed"}))
+    with pytest.raises(ValueError, match="flow/summary.json: no git_commit recorded"):
+        P.provenance_text(config, ["base"], tmp_path / "base")
+
+
+def test_the_committed_documents_runs_all_come_from_clean_commits():
+    from lbmpipe.reproduction import provenance as P
+    from lbmpipe.reproduction.literate import _document_levels
+
+    config = yaml.safe_load((REPO / "config.yaml").read_text())
+    text = P.provenance_text(config, _document_levels(config, "credible"), REPO / "results" / "credible")
+    assert "come from clean commits;" in text, text

@@ -41,6 +41,7 @@ from .claim_rules import find_case
 from .claims import REFERENCE_DESC
 from .figures import figure_cases
 from .profile_error import read_profile_error
+from .provenance import provenance_text
 from . import findings
 from .snapshots import FIG3_CAPTION, fig3_cases, snapshot_gallery
 from .webpage import markdown_to_html
@@ -390,6 +391,7 @@ def build_context(repo_root: Path, fid_dir: Path, fidelity: str, config: dict, o
         "figure_sections": figure_sections(fid_dir, out_dir, config, claim_rows, case_data, health_ctx["rows"]),
         "claims_summary": claim_rows,
         "health_summary": health_summary_table(fid_dir, config, health_ctx["rows"], case_data),
+        "provenance": provenance_text(config, _document_levels(config, fidelity), fid_dir),
         "gallery": relative_href(gallery, out_dir) if gallery else None,
         "gallery_caption": FIG3_CAPTION.format(cases=", ".join(f"`{c}`" for c in shown)),
         "level_parameters": [p for p in params if p["fidelity"] == fidelity],
@@ -431,6 +433,13 @@ def _related_levels(config: dict, fidelity: str) -> set[str]:
     fids = config.get("fidelities") or {}
     return {fidelity} | {k for k, v in fids.items() if fidelity in
                          ((v or {}).get("control_of"), (v or {}).get("convergence_of"), (v or {}).get("compare_with"))}
+
+
+def _document_levels(config: dict, fidelity: str) -> list[str]:
+    """The levels whose runs the document draws on: :func:`_related_levels` and the reruns of its unstable runs."""
+    fids = config.get("fidelities") or {}
+    levels = _related_levels(config, fidelity) | {k for k, v in fids.items() if (v or {}).get("unstable_of") == fidelity}
+    return [fidelity] + sorted(levels - {fidelity})
 
 
 def _current_levels(runtime: dict, config: dict, fidelity: str, fid_dir: Path) -> dict:

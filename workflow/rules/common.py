@@ -214,6 +214,9 @@ class Pipeline:
             # the measured causes of the unstable runs, of this level and of its reruns (robustness.unstable_causes)
             extra += sorted(str(p) for lvl in [wildcards.fidelity, *unstable_levels(self.config, wildcards.fidelity)]
                             for p in Path(f"results/{lvl}/unstable").glob("*.json"))
+        # the reruns the provenance paragraph counts (provenance.rerun_counts), where the level has them
+        if Path(f"results/{wildcards.fidelity}/reruns.csv").exists():
+            extra.append(f"results/{wildcards.fidelity}/reruns.csv")
         return extra
 
     def method_inputs(self, wildcards) -> list:
