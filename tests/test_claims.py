@@ -155,8 +155,20 @@ def test_claim14_without_its_reference_run_says_reference_not_run_and_does_not_d
                                          (claims.ALIGN_NOCOLL_CASE, "cyl_axis_angle", 60.0, 2.0)])
     row = claim_row(tmp_path, PAIR14, 14)
     assert row.verdict == "inconclusive"
-    assert "reference not run" in row.reason and REF14 in row.reason
+    assert "reference of claim 14 not run" in row.reason and REF14 in row.reason and "runs it" in row.reason
     assert "sensitivity, collisions off" in row["values"] and "d = -20" in row["values"]
+
+
+def test_claim14_with_a_reference_run_whose_angle_has_no_interval_does_not_call_it_not_run(tmp_path):
+    # one packing of the dilute reference (a control's look at packing 1): it ran, its mean has no interval
+    write_orientation_summary(tmp_path, [(claims.ALIGN_CASE, "cyl_axis_angle", 56.3, 2.0),
+                                         (REF14, "cyl_axis_angle", 33.5, np.nan)])
+    (tmp_path / "cases" / REF14).mkdir(parents=True)
+    (tmp_path / "cases" / REF14 / "stats.json").write_text("{}")
+    row = claim_row(tmp_path, PAIR14, 14)
+    assert row.verdict == "inconclusive"
+    assert "reference of claim 14 gives no interval" in row.reason and "33.5 deg without an interval" in row.reason
+    assert "not run" not in row.reason and "runs it" not in row.reason
 
 
 def test_claim14_with_a_mean_angle_but_no_interval_says_so_instead_of_calling_the_statistics_missing(tmp_path):

@@ -512,13 +512,15 @@ def claim14(inp: Inputs) -> Outcome:
             f"[{_f(a[0] - nc[0] - math.hypot(a[1], nc[1]))}, {_f(a[0] - nc[0] + math.hypot(a[1], nc[1]))}] deg"
             if a is not None and nc is not None else f"sensitivity, collisions off: {why_nc or why_a}")
     if r is None:
-        out = Outcome(statistic=statistic, values=f"no comparison: the reference is not available; {sens}",
-                      carried="no comparison", deciding=f"reference not run ({ref or _desc(*REFERENCE_DESC)})")
-        out.reason = (f"inputs missing: reference not run ({why_r}): the no-interaction reference of claim 14 has "
-                      f"no results at this level (`snakemake -c2 --config fidelity={inp.fid_dir.name} new_runs=all -- "
-                      f"results/{inp.fid_dir.name}/cases/{ref or '<reference case>'}/stats.json` runs it); the "
-                      f"collisions-off run is a sensitivity and does not decide"
-                      + (f"; missing: {why_a}" if why_a else ""))
+        ran = ref is not None and (inp.fid_dir / "cases" / ref / "stats.json").exists()
+        state = "gives no interval" if ran else "not run"
+        out = Outcome(statistic=statistic, values=f"no comparison: the reference {state}; {sens}",
+                      carried="no comparison", deciding=f"reference {state} ({ref or _desc(*REFERENCE_DESC)})")
+        fix = ("its angle needs several packings or a longer window" if ran else
+               f"it has no results at this level (`snakemake -c2 --config fidelity={inp.fid_dir.name} new_runs=all -- "
+               f"results/{inp.fid_dir.name}/cases/{ref or '<reference case>'}/stats.json` runs it)")
+        out.reason = (f"inputs missing: the no-interaction reference of claim 14 {state} ({why_r}): {fix}; the "
+                      "collisions-off run is a sensitivity and does not decide" + (f"; missing: {why_a}" if why_a else ""))
         return out
     cmps, missing = [], [w for w in (why_a,) if w]
     if a is not None:

@@ -29,6 +29,8 @@ rule method_comparison:
     localrule: True
     input:
         other=PIPE.method_inputs,
+    params:
+        contents=PIPE.inputs_digest(PIPE.method_inputs),
     output:
         runs="results/{fidelity}/method/runs.csv",
         claims="results/{fidelity}/method/claims.csv",
@@ -54,6 +56,7 @@ rule robustness:
     params:
         # the control runs present and how each ended: a new one rebuilds this (its inputs are ancient)
         present=PIPE.robustness_present,
+        contents=PIPE.inputs_digest(PIPE.robustness_inputs),
     output:
         controls="results/{fidelity}/robustness/controls.csv",
         shifts="results/{fidelity}/robustness/shifts.csv",
@@ -85,6 +88,8 @@ rule convergence:
     localrule: True
     input:
         PIPE.convergence_inputs,
+    params:
+        contents=PIPE.inputs_digest(PIPE.convergence_inputs),
     output:
         values="results/{fidelity}/convergence/values.csv",
         order="results/{fidelity}/convergence/order.csv",
