@@ -163,8 +163,6 @@ def test_claim14_with_a_reference_run_whose_angle_has_no_interval_does_not_call_
     # one packing of the dilute reference (a control's look at packing 1): it ran, its mean has no interval
     write_orientation_summary(tmp_path, [(claims.ALIGN_CASE, "cyl_axis_angle", 56.3, 2.0),
                                          (REF14, "cyl_axis_angle", 33.5, np.nan)])
-    (tmp_path / "cases" / REF14).mkdir(parents=True)
-    (tmp_path / "cases" / REF14 / "stats.json").write_text("{}")
     row = claim_row(tmp_path, PAIR14, 14)
     assert row.verdict == "inconclusive"
     assert "reference of claim 14 gives no interval" in row.reason and "33.5 deg without an interval" in row.reason

@@ -647,7 +647,8 @@ def test_provenance_counts_each_levels_commits_names_dirty_runs_and_the_reruns_b
     cases = tmp_path / "base" / "cases"
     for run, commit in (("flow", "a1"), ("cyl/seed1", "b2"), ("cyl/seed2", "c3-dirty")):
         (cases / run).mkdir(parents=True)
-        (cases / run / "summary.json").write_text(json.dumps({"provenance": {"git_commit": commit}}))
+        (cases / run / "summary.json").write_text(json.dumps({"status": "completed",
+                                                              "provenance": {"git_commit": commit}}))
     (tmp_path / "base" / "reruns.csv").write_text(
         "run,old_commit,new_commit,last_frame_identical,force_identical\n"
         "cyl/seed1,x9-dirty,b2,False,False\n")

@@ -372,6 +372,10 @@ def test_a_control_run_copied_in_asks_for_its_statistics_and_changes_the_robustn
     _run(tmp_path / "results" / lvl / "cases" / first)
     inputs = [str(f) for f in pipe.robustness_inputs(wc)]
     assert f"results/{lvl}/cases/{first}/stats.json" in inputs   # not there yet: the statistics rule builds it
+    digest = pipe.inputs_digest(pipe.robustness_inputs)  # the content trigger takes an input still to be built
+    unbuilt = digest(wc)
+    (tmp_path / "results" / lvl / "cases" / first / "stats.json").write_text("{}")
+    assert digest(wc) != unbuilt
     before = pipe.robustness_present(wc)
     assert before == f"{lvl}/{first}=completed"
     _run(tmp_path / "results" / lvl / "cases" / second, status="unstable")

@@ -216,6 +216,11 @@ class Inputs:
             return None, f"{name}: mean {kind} {v:.1f} deg without an interval (averaged too short for its correlation time)"
         return (v, c), None
 
+    def has_angle_row(self, name: str | None, kind: str) -> bool:
+        """Whether the case ran: a completed row of ``kind`` in the orientation summary, with or without
+        an interval (what tells :meth:`angle`'s "not run" from "without an interval")."""
+        return self._row(self.osum, "tables/orientation_summary.csv", name, "", kind)[0] is not None
+
     def histogram(self, name: str | None, kind: str, desc: str = "") -> tuple[pd.DataFrame | None, str | None]:
         r, why = self._row(self.orient, "tables/orientation.csv", name, desc, kind)
         if r is None:

@@ -512,7 +512,7 @@ def claim14(inp: Inputs) -> Outcome:
             f"[{_f(a[0] - nc[0] - math.hypot(a[1], nc[1]))}, {_f(a[0] - nc[0] + math.hypot(a[1], nc[1]))}] deg"
             if a is not None and nc is not None else f"sensitivity, collisions off: {why_nc or why_a}")
     if r is None:
-        ran = ref is not None and (inp.fid_dir / "cases" / ref / "stats.json").exists()
+        ran = inp.has_angle_row(ref, kind)
         state = "gives no interval" if ran else "not run"
         out = Outcome(statistic=statistic, values=f"no comparison: the reference {state}; {sens}",
                       carried="no comparison", deciding=f"reference {state} ({ref or _desc(*REFERENCE_DESC)})")

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import pandas as pd
 
-from .cases import level_runs
+from .robustness import runs_done
 
 RERUN_COLUMNS = ["run", "old_commit", "new_commit", "last_frame_identical", "force_identical"]
 
@@ -31,13 +31,9 @@ def run_commit(summary_path: Path) -> str:
 
 
 def level_commits(config: dict, level: str, results: Path) -> Counter:
-    """Runs per commit among the level's runs present (``cases.level_runs``; a run not made is not counted)."""
-    out: Counter = Counter()
-    for run in level_runs(config, level):
-        path = Path(results) / level / "cases" / run / "summary.json"
-        if path.exists():
-            out[run_commit(path)] += 1
-    return out
+    """Runs per commit among the level's runs present (``robustness.runs_done``; a run not made is not counted)."""
+    return Counter(run_commit(Path(results) / level / "cases" / run / "summary.json")
+                   for run in runs_done(config, level, Path(results))[0])
 
 
 def rerun_counts(fid_dir: Path) -> dict | None:
@@ -53,8 +49,7 @@ def rerun_counts(fid_dir: Path) -> dict | None:
     same = df["last_frame_identical"].astype(bool) & df["force_identical"].astype(bool)
     dirty = df["old_commit"].astype(str).str.endswith("-dirty")
     return {"n": len(df), "identical": int(same.sum()), "dirty_differ": int((~same & dirty).sum()),
-            "clean_differ": int((~same & ~dirty).sum()), "runs": set(df["run"]),
-            "commits": set(df["new_commit"].astype(str))}
+            "clean_differ": int((~same & ~dirty).sum()), "commits": set(df["new_commit"].astype(str))}
 
 
 def provenance_text(config: dict, levels: list[str], fid_dir: Path) -> str:

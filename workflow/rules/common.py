@@ -292,11 +292,13 @@ class Pipeline:
     def inputs_digest(self, inputs) -> callable:
         """A params function: the sha256 of the contents of ``inputs(wildcards)``'s files, a rerun
         trigger for a rule whose inputs are ancient (their mtimes ignored), so that a run's statistics
-        rebuilt in place (a rerun, a statistics fix) rebuild what reads them instead of leaving it stale."""
+        rebuilt in place (a rerun, a statistics fix) rebuild what reads them instead of leaving it stale.
+        An input another job of the same DAG still has to build (a copied-in run's statistics) enters
+        by its name alone; the job runs anyway, since that input is new."""
         def digest(wildcards) -> str:
             h = hashlib.sha256()
             for f in sorted(str(f) for f in inputs(wildcards)):
-                h.update(f.encode() + b"\0" + Path(f).read_bytes())
+                h.update(f.encode() + b"\0" + (Path(f).read_bytes() if Path(f).exists() else b"\0(to be built)"))
             return h.hexdigest()
         return digest
 
